@@ -1,0 +1,137 @@
+"""The NURBS surface type: evaluation, derivatives, tessellation and JSON round trip.
+
+A NURBS surface of degrees (p, q) with control net P_ij and weights w_ij is
+
+    S(u, v) = sum_ij w_ij N_i,p(u) N_j,q(v) P_ij / sum_ij w_ij N_i,p(u) N_j,q(v)
+
+evaluated on the domain [t_p, t_{-p-1}] x [s_q, s_{-q-1}]. The net is stored whole:
+a closed direction repeats its first ``degree`` rows at the end and carries an
+unclamped periodic knot vector, so that any standard evaluator draws the closed
+surface (see :mod:`psonurbs.basis`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .basis import design_matrix, tensor_basis
+
+
+def rational_basis(tensor: sp.csr_array, weights: np.ndarray) -> sp.csr_array:
+    """``R = diag(1 / (T w)) T diag(w)``: the rational basis from the tensor basis T.
+
+    With R, the surface at the rows' parameters is ``R @ P`` (P flattened row-major).
+    """
+    weights = np.ravel(weights)
+    den = tensor @ weights
+    data = tensor.data * weights[tensor.indices]
+    data /= np.repeat(den, np.diff(tensor.indptr))
+    return sp.csr_array((data, tensor.indices, tensor.indptr), shape=tensor.shape)
+
+
+@dataclass
+class NurbsSurface:
+    degree_u: int
+    degree_v: int
+    knots_u: np.ndarray
+    knots_v: np.ndarray
+    control_points: np.ndarray  # (nu, nv, 3), [i][j] = i-th along u, j-th along v
+    weights: np.ndarray  # (nu, nv), positive
+    closed_u: bool = False
+    closed_v: bool = False
+
+    def __post_init__(self):
+        self.knots_u = np.asarray(self.knots_u, float)
+        self.knots_v = np.asarray(self.knots_v, float)
+        self.control_points = np.asarray(self.control_points, float)
+        nu, nv = self.control_points.shape[:2]
+        self.weights = np.asarray(self.weights, float).reshape(nu, nv)
+        if self.control_points.shape != (nu, nv, 3):
+            raise ValueError("control_points must have shape (nu, nv, 3)")
+        if len(self.knots_u) != nu + self.degree_u + 1 or len(self.knots_v) != nv + self.degree_v + 1:
+            raise ValueError(f"knot vectors of length {len(self.knots_u)}, {len(self.knots_v)} do not "
+                             f"fit a {nu} x {nv} net of degrees {self.degree_u}, {self.degree_v}")
+        if np.any(np.diff(self.knots_u) < 0) or np.any(np.diff(self.knots_v) < 0):
+            raise ValueError("knot vectors must be non-decreasing")
+        if np.any(self.weights <= 0):
+            raise ValueError("weights must be positive")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.control_points.shape[:2]
+
+    @property
+    def domain_u(self) -> tuple[float, float]:
+        return float(self.knots_u[self.degree_u]), float(self.knots_u[-self.degree_u - 1])
+
+    @property
+    def domain_v(self) -> tuple[float, float]:
+        return float(self.knots_v[self.degree_v]), float(self.knots_v[-self.degree_v - 1])
+
+    def tensor(self, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> sp.csr_array:
+        """Non-rational tensor basis (or its derivative) at the points (u_r, v_r)."""
+        bu = design_matrix(u, self.knots_u, self.degree_u, du)
+        bv = design_matrix(v, self.knots_v, self.degree_v, dv)
+        return tensor_basis(bu, bv)
+
+    def evaluate(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Points S(u_r, v_r), shape (N, 3)."""
+        return self.derivatives(u, v, first=False)[0]
+
+    def derivatives(self, u: np.ndarray, v: np.ndarray, first: bool = True):
+        """S, and with ``first`` the partials S_u, S_v (quotient rule on A / w)."""
+        w = self.weights.reshape(-1)
+        aw = (self.control_points * self.weights[..., None]).reshape(-1, 3)
+        t = self.tensor(u, v)
+        den = t @ w
+        s = (t @ aw) / den[:, None]
+        if not first:
+            return (s,)
+        out = [s]
+        for du, dv in ((1, 0), (0, 1)):
+            td = self.tensor(u, v, du, dv)
+            out.append(((td @ aw) - (td @ w)[:, None] * s) / den[:, None])
+        return tuple(out)
+
+    def parameter_grid(self, n_u: int, n_v: int) -> tuple[np.ndarray, np.ndarray]:
+        """Equally spaced parameters spanning the whole domain in each direction."""
+        return np.linspace(*self.domain_u, n_u), np.linspace(*self.domain_v, n_v)
+
+    def evaluate_grid(self, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
+        """S on the tensor grid us x vs, shape (len(us), len(vs), 3)."""
+        uu, vv = np.meshgrid(us, vs, indexing="ij")
+        return self.evaluate(uu.ravel(), vv.ravel()).reshape(len(us), len(vs), 3)
+
+    def tessellate(self, n_u: int = 101, n_v: int = 101) -> tuple[np.ndarray, np.ndarray]:
+        """Triangle mesh of the surface on an n_u x n_v parameter grid."""
+        grid = self.evaluate_grid(*self.parameter_grid(n_u, n_v))
+        return grid.reshape(-1, 3), grid_triangles(n_u, n_v)
+
+    def to_dict(self) -> dict:
+        return {
+            "degree_u": int(self.degree_u),
+            "degree_v": int(self.degree_v),
+            "knots_u": [float(x) for x in self.knots_u],
+            "knots_v": [float(x) for x in self.knots_v],
+            "control_points": self.control_points.tolist(),
+            "weights": self.weights.tolist(),
+            "closed_u": bool(self.closed_u),
+            "closed_v": bool(self.closed_v),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NurbsSurface":
+        cp = np.asarray(d["control_points"], float)
+        return cls(int(d["degree_u"]), int(d["degree_v"]), d["knots_u"], d["knots_v"], cp,
+                   d.get("weights", np.ones(cp.shape[:2])),
+                   bool(d.get("closed_u", False)), bool(d.get("closed_v", False)))
+
+
+def grid_triangles(n_u: int, n_v: int) -> np.ndarray:
+    """Two triangles per cell of an n_u x n_v vertex grid stored row-major."""
+    i, j = np.meshgrid(np.arange(n_u - 1), np.arange(n_v - 1), indexing="ij")
+    a = (i * n_v + j).ravel()
+    b, c, d = a + n_v, a + 1, a + n_v + 1
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([c, b, d], 1)]).astype(np.int64)
