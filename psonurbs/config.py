@@ -1,0 +1,352 @@
+"""The fit configuration: schema, defaults and validation.
+
+A config is a YAML mapping in the paper's vocabulary (see DESIGN.md)::
+
+    orders: [3, 3]        # k, l: order = degree + 1
+    net_size: [5, 5]      # (m+1) x (n+1) control points
+    topology: open        # open | cylinder | sphere | torus | auto
+    swarm:
+      particles: 40
+      iterations: 300
+      inertia: 0.7        # w
+      c1: 1.5
+      c2: 1.5
+      seed: 7
+
+Every key is optional. Validation is strict: an unknown key, a value of the wrong
+type (``true`` is not an integer) or an impossible value raises
+:class:`psonurbs.errors.ConfigError` whose message names the file and the key.
+
+The dataclasses validate themselves in ``__post_init__``, so a config built in
+Python is checked by the same rules as one read from YAML.
+"""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import numbers
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from psonurbs.errors import ConfigError
+
+TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
+STRATEGIES = ("hybrid", "full")
+
+__all__ = [
+    "SwarmConfig",
+    "FitConfig",
+    "TOPOLOGIES",
+    "STRATEGIES",
+    "load_config",
+    "config_from_dict",
+]
+
+
+# ---- value checks ----------------------------------------------------------
+# Each takes the dotted key (for the message) and the raw value, and returns the
+# normalised value (Python int / float / tuple) or raises ConfigError.
+
+def _show(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return repr(value)
+    return str(value)
+
+
+def _fail(key: str, expected: str, value: Any) -> ConfigError:
+    return ConfigError(f"config key '{key}': expected {expected}, got {_show(value)}")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _int(key: str, value: Any, *, minimum: int, what: str) -> int:
+    if not _is_int(value) or value < minimum:
+        raise _fail(key, what, value)
+    return int(value)
+
+
+def _float(key: str, value: Any, *, what: str, ok=lambda x: True) -> float:
+    if not _is_real(value) or not math.isfinite(float(value)) or not ok(float(value)):
+        raise _fail(key, what, value)
+    return float(value)
+
+
+def _pair(key: str, value: Any, item, what: str) -> tuple:
+    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise _fail(key, f"a list of 2 {what}", value)
+    try:
+        return tuple(item(v) for v in value)
+    except ConfigError:
+        raise _fail(key, f"a list of 2 {what}", list(value)) from None
+
+
+def _choice(key: str, value: Any, choices: tuple[str, ...]) -> str:
+    if not isinstance(value, str) or value not in choices:
+        raise _fail(key, "one of " + ", ".join(choices), value)
+    return value
+
+
+# ---- the schema ------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SwarmConfig:
+    """Particle swarm parameters (the paper's Eq. 1-2).
+
+    particles, iterations: swarm size and number of generations (>= 1).
+    inertia: w, the weight of the previous velocity (>= 0).
+    c1, c2: learning factors towards the swarm's and the particle's best (>= 0).
+    seed: seed of the random generator (>= 0); the same seed gives the same fit.
+    """
+
+    particles: int = 40
+    iterations: int = 300
+    inertia: float = 0.7
+    c1: float = 1.5
+    c2: float = 1.5
+    seed: int = 7
+
+    def __post_init__(self) -> None:
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        put("particles", _int("swarm.particles", self.particles, minimum=1, what="a positive integer"))
+        put("iterations", _int("swarm.iterations", self.iterations, minimum=1, what="a positive integer"))
+        for name in ("inertia", "c1", "c2"):
+            put(name, _float(f"swarm.{name}", getattr(self, name), what="a finite number >= 0",
+                             ok=lambda x: x >= 0))
+        put("seed", _int("swarm.seed", self.seed, minimum=0, what="an integer >= 0"))
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Everything a fit needs besides the points.
+
+    orders: (k, l), order = degree + 1, each >= 2 and <= the net size.
+    net_size: control points along u and v.
+    topology: open | cylinder | sphere | torus | auto.
+    strategy: "hybrid" (swarm over knots and weights, control points by least
+        squares) or "full" (the paper's Eq. 10 search space).
+    smoothing: relative weight of the control-net smoothness term (>= 0).
+    swarm_points: at most this many points (a subsample) are seen by the swarm.
+    polish_iterations: rounds of parameter correction after the swarm (>= 0).
+    tessellation: mesh resolution (n_u, n_v), each >= 2.
+    weight_bounds: (lo, hi) bounds on the NURBS weights, 0 < lo <= 1 <= hi.
+    min_knot_gap: minimum gap between knots, as a fraction of the uniform spacing.
+    holdout: fraction of points held out to measure generalisation, in [0, 0.5).
+    remove_outliers: drop statistical outliers before fitting.
+    """
+
+    orders: tuple[int, int] = (3, 3)
+    net_size: tuple[int, int] = (5, 5)
+    topology: str = "open"
+    strategy: str = "hybrid"
+    swarm: SwarmConfig = field(default_factory=SwarmConfig)
+    smoothing: float = 1e-4
+    swarm_points: int = 1500
+    polish_iterations: int = 10
+    tessellation: tuple[int, int] = (101, 101)
+    weight_bounds: tuple[float, float] = (0.2, 5.0)
+    min_knot_gap: float = 0.2
+    holdout: float = 0.2
+    remove_outliers: bool = False
+
+    def __post_init__(self) -> None:
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        def order(v):
+            return _int("orders", v, minimum=2, what="")
+
+        def count(v):
+            return _int("net_size", v, minimum=1, what="")
+
+        put("orders", _pair("orders", self.orders, order, "integers >= 2 (order = degree + 1)"))
+        put("net_size", _pair("net_size", self.net_size, count, "positive integers"))
+        for direction, k, n in zip("uv", self.orders, self.net_size):
+            if k > n:
+                raise ConfigError(
+                    f"config key 'orders': order {k} in {direction} is larger than net_size {n}")
+        put("topology", _choice("topology", self.topology, TOPOLOGIES))
+        put("strategy", _choice("strategy", self.strategy, STRATEGIES))
+        swarm = self.swarm
+        if swarm is None:
+            swarm = SwarmConfig()
+        elif isinstance(swarm, Mapping):
+            swarm = _swarm_from_mapping(swarm)
+        elif not isinstance(swarm, SwarmConfig):
+            raise _fail("swarm", "a mapping", swarm)
+        put("swarm", swarm)
+        put("smoothing", _float("smoothing", self.smoothing, what="a finite number >= 0",
+                                ok=lambda x: x >= 0))
+        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=1,
+                                 what="a positive integer"))
+        put("polish_iterations", _int("polish_iterations", self.polish_iterations, minimum=0,
+                                      what="an integer >= 0"))
+        put("tessellation", _pair("tessellation", self.tessellation,
+                                  lambda v: _int("tessellation", v, minimum=2, what=""),
+                                  "integers >= 2"))
+        lo, hi = _pair("weight_bounds", self.weight_bounds,
+                       lambda v: _float("weight_bounds", v, what="", ok=lambda x: x > 0),
+                       "positive numbers")
+        if not lo <= 1.0 <= hi:
+            raise _fail("weight_bounds", "[lo, hi] with 0 < lo <= 1 <= hi", [lo, hi])
+        put("weight_bounds", (lo, hi))
+        put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
+                                   what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
+        put("holdout", _float("holdout", self.holdout, what="a number in [0, 0.5)",
+                              ok=lambda x: 0 <= x < 0.5))
+        if not isinstance(self.remove_outliers, bool):
+            raise _fail("remove_outliers", "true or false", self.remove_outliers)
+
+    @property
+    def degrees(self) -> tuple[int, int]:
+        """(p, q) = (k - 1, l - 1)."""
+        return (self.orders[0] - 1, self.orders[1] - 1)
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able dict, same shape as the YAML (lists, nested swarm)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, SwarmConfig):
+                value = value.to_dict()
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
+
+    def with_overrides(self, source: str = "command-line options", **overrides: Any) -> "FitConfig":
+        """A copy with some keys replaced; ``None`` values are ignored.
+
+        Swarm keys may be given bare (``seed=3``, ``particles=20``) or dotted
+        (``**{"swarm.seed": 3}``). The result is validated like a file; errors
+        name ``source``.
+        """
+        d = self.to_dict()
+        swarm_keys = {f.name for f in dataclasses.fields(SwarmConfig)}
+        for key, value in overrides.items():
+            if value is None:
+                continue
+            if key.startswith("swarm."):
+                d["swarm"][key[len("swarm."):]] = value
+            elif key in swarm_keys:
+                d["swarm"][key] = value
+            else:
+                d[key] = value
+        return config_from_dict(d, source=source)
+
+
+_TOP_KEYS = tuple(f.name for f in dataclasses.fields(FitConfig))
+_SWARM_KEYS = tuple(f.name for f in dataclasses.fields(SwarmConfig))
+
+
+def _check_keys(d: Mapping, known: tuple[str, ...], prefix: str) -> None:
+    for key in d:
+        if not isinstance(key, str) or key not in known:
+            name = f"{prefix}{key}"
+            hint = ""
+            if isinstance(key, str):
+                close = difflib.get_close_matches(key, known, n=1)
+                if close:
+                    hint = f"; did you mean '{prefix}{close[0]}'?"
+            raise ConfigError(f"unknown config key '{name}' (known: {', '.join(known)}){hint}")
+
+
+def _swarm_from_mapping(d: Mapping) -> SwarmConfig:
+    _check_keys(d, _SWARM_KEYS, "swarm.")
+    return SwarmConfig(**d)
+
+
+def config_from_dict(d: Mapping | None, source: str | None = None) -> FitConfig:
+    """Validate a parsed config mapping and build a :class:`FitConfig`.
+
+    ``None`` (an empty file) gives the defaults. ``source`` (usually the file
+    name) prefixes every error message.
+    """
+    try:
+        if d is None:
+            d = {}
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"the top level must be a mapping of config keys, got {_show(d)}")
+        _check_keys(d, _TOP_KEYS, "")
+        kwargs = dict(d)
+        swarm = kwargs.get("swarm")
+        if swarm is not None and not isinstance(swarm, Mapping):
+            raise _fail("swarm", "a mapping", swarm)
+        return FitConfig(**kwargs)
+    except ConfigError as e:
+        if source:
+            raise ConfigError(f"{source}: {e}") from None
+        raise
+
+
+# ---- YAML ------------------------------------------------------------------
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that reads ``1e-4`` as a float (YAML 1.2) and rejects duplicate keys."""
+
+
+_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X)
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+0123456789."))
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
+    seen: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if isinstance(key, str) and key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key '{key}'", key_node.start_mark)
+        seen[key] = True
+    return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def load_config(path: str | os.PathLike | None) -> FitConfig:
+    """Read and validate a YAML config file; ``None`` gives the defaults."""
+    if path is None:
+        return FitConfig()
+    path = Path(path)
+    name = str(path)
+    if not path.exists():
+        raise ConfigError(f"{name}: config file not found")
+    if path.is_dir():
+        raise ConfigError(f"{name}: is a directory, not a config file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{name}: config file is not UTF-8 text") from None
+    except OSError as e:
+        raise ConfigError(f"{name}: cannot read config file ({e.strerror or e})") from None
+    try:
+        data = yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as e:
+        message = " ".join(str(e).split())
+        raise ConfigError(f"malformed YAML in {name}: {message}") from None
+    return config_from_dict(data, source=name)
