@@ -1,0 +1,406 @@
+"""Reading point clouds and writing fit outputs.
+
+Reading refuses anything that is not a usable cloud with an
+:class:`~psonurbs.errors.InputError` whose message starts with the file name
+(``"scan.ply: file is empty"``). open3d alone is too forgiving for that: for a
+missing or malformed file it returns an empty cloud and prints a warning, and for
+a truncated binary PLY it pads with zeros. So the PLY header is checked here, and
+open3d's messages are captured and turned into the error.
+
+Writing is atomic per file (write ``NAME.tmp-<pid>`` beside the target, then
+``os.replace``) and all-or-nothing per fit (:func:`write_fit_outputs`). Outputs are
+byte-identical for identical inputs: no timestamps, no paths.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from psonurbs.errors import InputError
+
+__all__ = [
+    "CLOUD_SUFFIXES",
+    "read_cloud",
+    "atomic_write",
+    "output_paths",
+    "render_json",
+    "render_obj",
+    "render_ply",
+    "render_csv",
+    "write_fit_outputs",
+]
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts")
+_TEXT_SUFFIXES = (".xyz", ".txt", ".pts")
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+# ---- reading ---------------------------------------------------------------
+
+def read_cloud(path: str | os.PathLike) -> np.ndarray:
+    """Read a point cloud file as an ``(N, 3)`` float64 array.
+
+    ``.ply`` and ``.pcd`` are read with open3d; ``.xyz``, ``.txt`` and ``.pts``
+    are text with x, y, z in the first three columns, separated by whitespace or
+    commas (``#`` starts a comment; a ``.pts`` file may begin with a point count).
+
+    Raises :class:`InputError` (message starting with the path) for a missing
+    file, a directory, an unknown extension, an unreadable, empty or malformed
+    file, a PLY without vertices, and NaN or infinite coordinates.
+    """
+    path = Path(path)
+    name = str(path)
+    if not path.exists():
+        raise InputError(f"{name}: no such file")
+    if path.is_dir():
+        raise InputError(f"{name}: is a directory, not a point cloud file")
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        shown = f"'{path.suffix}'" if path.suffix else "no extension"
+        raise InputError(f"{name}: unknown point cloud type ({shown}); "
+                         f"expected one of {', '.join(CLOUD_SUFFIXES)}")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError as e:
+        raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
+    if not head:
+        raise InputError(f"{name}: file is empty")
+
+    if suffix == ".ply":
+        points = _read_ply(path, name, head)
+    elif suffix == ".pcd":
+        points = _read_open3d(path, name, "pcd")
+    else:
+        points = _read_text(path, name, suffix)
+
+    if len(points) == 0:
+        raise InputError(f"{name}: no points found in the file")
+    bad_nan = np.isnan(points).any(axis=1)
+    bad_inf = np.isinf(points).any(axis=1) & ~bad_nan
+    n_bad = int(bad_nan.sum() + bad_inf.sum())
+    if n_bad:
+        raise InputError(f"{name}: {n_bad} of {len(points)} points have non-finite coordinates "
+                         f"({int(bad_nan.sum())} NaN, {int(bad_inf.sum())} infinite)")
+    return np.ascontiguousarray(points, dtype=np.float64)
+
+
+@contextlib.contextmanager
+def _captured_output() -> Iterator[list[str]]:
+    """Capture what C/C++ code prints to file descriptors 1 and 2.
+
+    open3d's logger writes to stdout and RPly writes to stderr; both are noise
+    for our users but useful in an error message. The captured text is appended
+    to the yielded list when the block ends.
+    """
+    out: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    saved = []
+    with tempfile.TemporaryFile() as sink:
+        try:
+            for fd in (1, 2):
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(sink.fileno(), fd)
+                except OSError:
+                    pass
+            yield out
+        finally:
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+            sink.seek(0)
+            out.append(_ANSI.sub("", sink.read().decode("utf-8", "replace")))
+
+
+def _open3d_detail(captured: str) -> str:
+    lines = [ln.strip() for ln in captured.splitlines() if ln.strip()]
+    lines = [re.sub(r"^\[Open3D (WARNING|ERROR|INFO|DEBUG)\]\s*", "", ln) for ln in lines]
+    return "; ".join(lines[:2])
+
+
+def _read_open3d(path: Path, name: str, fmt: str, expected: int | None = None) -> np.ndarray:
+    import open3d as o3d
+
+    with _captured_output() as captured, \
+            o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Warning):
+        cloud = o3d.io.read_point_cloud(str(path), format=fmt, remove_nan_points=False,
+                                        remove_infinite_points=False, print_progress=False)
+    points = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
+    detail = _open3d_detail(captured[0])
+    failed = ("RPly" in detail or "failed" in detail.lower()
+              or (expected is not None and len(points) != expected))
+    if failed or (len(points) == 0 and detail):
+        what = f"malformed or truncated {fmt.upper()} file"
+        if expected is not None and len(points) != expected:
+            what += f" (header declares {expected} vertices, {len(points)} read)"
+        raise InputError(f"{name}: {what}" + (f": {detail}" if detail else ""))
+    return points
+
+
+def _read_ply(path: Path, name: str, head: bytes) -> np.ndarray:
+    if not head.startswith(b"ply"):
+        raise InputError(f"{name}: not a PLY file (it does not start with 'ply')")
+    end = head.find(b"end_header")
+    if end < 0:
+        raise InputError(f"{name}: malformed PLY header (no 'end_header' line "
+                         "in the first 64 KiB)")
+    elements: dict[str, int] = {}
+    props: dict[str, list[str]] = {}
+    current = None
+    for raw in head[:end].decode("ascii", "replace").splitlines()[1:]:
+        words = raw.split()
+        if not words:
+            continue
+        if words[0] == "element" and len(words) == 3:
+            try:
+                count = int(words[2])
+            except ValueError:
+                raise InputError(f"{name}: malformed PLY header line '{raw.strip()}'") from None
+            current = words[1]
+            elements[current] = count
+            props[current] = []
+        elif words[0] == "property" and current is not None:
+            props[current].append(words[-1])
+    if "vertex" not in elements:
+        others = ", ".join(elements) or "none"
+        raise InputError(f"{name}: PLY file has no vertices (no 'vertex' element; "
+                         f"elements: {others})")
+    if elements["vertex"] == 0:
+        raise InputError(f"{name}: PLY file has no vertices (header declares 0)")
+    missing = [c for c in "xyz" if c not in props["vertex"]]
+    if missing:
+        raise InputError(f"{name}: PLY vertices have no {'/'.join(missing)} coordinate "
+                         f"(properties: {', '.join(props['vertex']) or 'none'})")
+    return _read_open3d(path, name, "ply", expected=elements["vertex"])
+
+
+_SPLIT = re.compile(r"[,\s]+")
+
+
+def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{name}: not a text point cloud (the file contains binary data)") from None
+    except OSError as e:
+        raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
+
+    # Fast path: numpy's C parser. Anything it does not like (a .pts count line,
+    # ragged rows, a bad token) goes through the slow path, which either reads it
+    # or says exactly which line is wrong.
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            points = np.loadtxt(text.replace(",", " ").splitlines(), usecols=(0, 1, 2),
+                                comments="#", ndmin=2, dtype=np.float64)
+        return points.reshape(-1, 3)
+    except (ValueError, IndexError):
+        pass
+
+    rows: list[tuple[float, float, float]] = []
+    errors: list[str] = []
+    first_data = True
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        tokens = [t for t in _SPLIT.split(line) if t]
+        if first_data and suffix == ".pts" and len(tokens) == 1 and tokens[0].isdigit():
+            first_data = False  # the point count that starts a .pts file
+            continue
+        first_data = False
+        if len(tokens) < 3:
+            errors.append(f"line {lineno}: expected at least 3 numbers (x y z), "
+                          f"found {len(tokens)}")
+            continue
+        try:
+            rows.append((float(tokens[0]), float(tokens[1]), float(tokens[2])))
+        except ValueError:
+            bad = next(t for t in tokens[:3] if not _is_float(t))
+            errors.append(f"line {lineno}: '{bad[:40]}' is not a number")
+    if errors:
+        more = f" (and {len(errors) - 1} more bad lines)" if len(errors) > 1 else ""
+        raise InputError(f"{name}: malformed point data at {errors[0]}{more}")
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def _is_float(token: str) -> bool:
+    try:
+        float(token)
+        return True
+    except ValueError:
+        return False
+
+
+# ---- writing ---------------------------------------------------------------
+
+def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
+    """Write ``data`` to ``path`` atomically.
+
+    The data go to ``path.tmp-<pid>`` in the same directory, which is then
+    renamed over ``path`` with :func:`os.replace`; a reader sees the old file or
+    the new one, never a part. Text is encoded as UTF-8 with ``\\n`` newlines.
+    """
+    path = Path(path)
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    return path
+
+
+def output_paths(out_dir: str | os.PathLike, stem: str) -> dict[str, Path]:
+    """The four files a fit writes, in the order they are written (JSON last)."""
+    out_dir = Path(out_dir)
+    return {
+        "obj": out_dir / f"{stem}.obj",
+        "ply": out_dir / f"{stem}.ply",
+        "csv": out_dir / f"{stem}_error.csv",
+        "json": out_dir / f"{stem}.json",
+    }
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (tuple, set, frozenset)):
+        return list(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def render_json(document: dict) -> str:
+    """``document`` as indented JSON; numpy values become plain numbers/lists.
+
+    NaN and infinity are refused (``ValueError``): JSON has no such numbers.
+    """
+    try:
+        return json.dumps(document, indent=2, sort_keys=False, allow_nan=False,
+                          default=_json_default) + "\n"
+    except ValueError as e:
+        raise ValueError(f"fit document is not valid JSON: {e}") from None
+
+
+def _mesh_arrays(vertices: Any, triangles: Any) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"mesh vertices must have shape (M, 3), got {v.shape}")
+    if not np.isfinite(v).all():
+        raise ValueError("mesh vertices contain NaN or infinity")
+    if t.size == 0:
+        t = t.reshape(0, 3)
+    if t.ndim != 2 or t.shape[1] != 3 or not np.issubdtype(t.dtype, np.integer):
+        raise ValueError(f"mesh triangles must be integers of shape (K, 3), got {t.dtype} {t.shape}")
+    if t.size and (t.min() < 0 or t.max() >= len(v)):
+        raise ValueError("mesh triangles index vertices out of range")
+    return v, t.astype(np.int64)
+
+
+def render_obj(vertices: Any, triangles: Any) -> str:
+    """Wavefront OBJ text: ``v x y z`` (``%.17g``, exact) and 1-based ``f a b c``."""
+    v, t = _mesh_arrays(vertices, triangles)
+    parts = [f"# psonurbs surface mesh: {len(v)} vertices, {len(t)} triangles\n"]
+    parts += ["v %.17g %.17g %.17g\n" % tuple(row) for row in v.tolist()]
+    parts += ["f %d %d %d\n" % tuple(row) for row in (t + 1).tolist()]
+    return "".join(parts)
+
+
+def render_ply(vertices: Any, triangles: Any) -> bytes:
+    """Binary little-endian PLY: double x y z, faces as ``list uchar int``."""
+    v, t = _mesh_arrays(vertices, triangles)
+    header = ("ply\n"
+              "format binary_little_endian 1.0\n"
+              "comment psonurbs surface mesh\n"
+              f"element vertex {len(v)}\n"
+              "property double x\nproperty double y\nproperty double z\n"
+              f"element face {len(t)}\n"
+              "property list uchar int vertex_indices\n"
+              "end_header\n").encode("ascii")
+    faces = np.empty(len(t), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    faces["n"] = 3
+    faces["idx"] = t
+    return header + np.ascontiguousarray(v, dtype="<f8").tobytes() + faces.tobytes()
+
+
+def render_csv(header: Sequence[str], rows: Any) -> str:
+    """CSV text: the header, then one row per iteration.
+
+    A column named ``iteration`` is written as an integer, every other one with
+    ``%.17g`` (round-trips exactly).
+    """
+    header = [str(h) for h in header]
+    for h in header:
+        if any(c in h for c in ',"\n\r'):
+            raise ValueError(f"CSV column name {h!r} contains a comma, quote or newline")
+    r = np.asarray(rows, dtype=np.float64)
+    if r.size == 0:
+        r = r.reshape(0, len(header))
+    if r.ndim != 2 or r.shape[1] != len(header):
+        raise ValueError(f"error curve has shape {r.shape}, expected (n, {len(header)}) "
+                         f"for columns {header}")
+    int_cols = [i for i, h in enumerate(header) if h == "iteration"]
+    for i in int_cols:
+        if not np.array_equal(r[:, i], np.round(r[:, i])):
+            raise ValueError("the 'iteration' column of the error curve is not integral")
+    fmt = ",".join("%d" if i in int_cols else "%.17g" for i in range(len(header))) + "\n"
+    values = r.tolist()
+    for i in int_cols:
+        for row in values:
+            row[i] = int(row[i])
+    return ",".join(header) + "\n" + "".join(fmt % tuple(row) for row in values)
+
+
+def write_fit_outputs(out_dir: str | os.PathLike, stem: str, document: dict,
+                      vertices: Any, triangles: Any, curve_header: Sequence[str],
+                      curve_rows: Any) -> dict[str, Path]:
+    """Write ``STEM.json``, ``STEM.obj``, ``STEM.ply`` and ``STEM_error.csv``.
+
+    All four are rendered in memory first; then each is written atomically, the
+    JSON last. If anything fails (including Ctrl-C), the files already placed for
+    this stem are removed and the exception propagates, so a fit leaves all four
+    files or none. ``out_dir`` is created if needed. Returns the paths by kind
+    (``"obj"``, ``"ply"``, ``"csv"``, ``"json"``).
+    """
+    paths = output_paths(out_dir, stem)
+    rendered = {
+        "obj": render_obj(vertices, triangles),
+        "ply": render_ply(vertices, triangles),
+        "csv": render_csv(curve_header, curve_rows),
+        "json": render_json(document),
+    }
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    placed: list[Path] = []
+    try:
+        for kind, path in paths.items():
+            atomic_write(path, rendered[kind])
+            placed.append(path)
+    except BaseException:
+        for path in placed:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        raise
+    return paths
