@@ -1,0 +1,1 @@
+"""The ``psonurbs`` command line: parse, call the library, report."""
