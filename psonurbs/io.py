@@ -14,6 +14,7 @@ byte-identical for identical inputs: no timestamps, no paths.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import re
@@ -95,17 +96,19 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
 
 @contextlib.contextmanager
 def _captured_output() -> Iterator[list[str]]:
-    """Capture what C/C++ code prints to file descriptors 1 and 2.
+    """Capture what open3d prints while it reads.
 
-    open3d's logger writes to stdout and RPly writes to stderr; both are noise
-    for our users but useful in an error message. The captured text is appended
-    to the yielded list when the block ends.
+    open3d's logger writes through Python's ``sys.stdout`` and RPly (its PLY
+    parser) writes to file descriptor 2 from C; both are noise for our users but
+    useful in an error message. So both the Python streams and descriptors 1 and 2
+    are redirected; the captured text is appended to the yielded list at the end.
     """
     out: list[str] = []
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
     saved = []
+    python_text = io.StringIO()
     with tempfile.TemporaryFile() as sink:
         try:
             for fd in (1, 2):
@@ -114,13 +117,15 @@ def _captured_output() -> Iterator[list[str]]:
                     os.dup2(sink.fileno(), fd)
                 except OSError:
                     pass
-            yield out
+            with contextlib.redirect_stdout(python_text), contextlib.redirect_stderr(python_text):
+                yield out
         finally:
             for fd, copy in saved:
                 os.dup2(copy, fd)
                 os.close(copy)
             sink.seek(0)
-            out.append(_ANSI.sub("", sink.read().decode("utf-8", "replace")))
+            text = python_text.getvalue() + sink.read().decode("utf-8", "replace")
+            out.append(_ANSI.sub("", text))
 
 
 def _open3d_detail(captured: str) -> str:
