@@ -1,0 +1,199 @@
+"""Config schema: defaults, round trips, and errors that name the file and the key."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from psonurbs.config import FitConfig, SwarmConfig, config_from_dict, load_config
+from psonurbs.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write(tmp_path: Path, text: str, name: str = "cfg.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def error_of(tmp_path: Path, text: str) -> str:
+    """The error for a config file holding ``text``, its directory shown as ``cfg.yaml``."""
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert str(path) in message  # the file is named
+    return message.replace(str(path), "cfg.yaml")
+
+
+# ---- defaults and round trips ----------------------------------------------
+
+def test_defaults_match_the_spec():
+    c = load_config(None)
+    assert c == FitConfig()
+    assert (c.orders, c.net_size, c.topology, c.strategy) == ((3, 3), (5, 5), "open", "hybrid")
+    assert c.swarm == SwarmConfig(particles=40, iterations=300, inertia=0.7, c1=1.5, c2=1.5, seed=7)
+    assert c.degrees == (2, 2)
+    assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-4, 1500, 10)
+    assert c.tessellation == (101, 101)
+    assert c.weight_bounds == (0.2, 5.0)
+    assert (c.min_knot_gap, c.holdout, c.remove_outliers) == (0.2, 0.2, False)
+
+
+def test_full_file_is_read_with_paper_names(tmp_path):
+    c = load_config(write(tmp_path, """
+orders: [4, 3]
+net_size: [10, 6]
+topology: cylinder
+strategy: full
+swarm: {particles: 12, iterations: 50, inertia: 0.5, c1: 2, c2: 1.25, seed: 0}
+smoothing: 1e-3
+swarm_points: 800
+polish_iterations: 0
+tessellation: [21, 31]
+weight_bounds: [0.5, 2]
+min_knot_gap: 0.1
+holdout: 0
+remove_outliers: true
+"""))
+    assert c.orders == (4, 3) and c.degrees == (3, 2) and c.net_size == (10, 6)
+    assert c.topology == "cylinder" and c.strategy == "full"
+    assert c.swarm == SwarmConfig(12, 50, 0.5, 2.0, 1.25, 0)
+    assert isinstance(c.swarm.c1, float)  # int accepted where a float is expected
+    assert c.smoothing == 1e-3  # YAML 1.1 would read "1e-3" as a string
+    assert (c.swarm_points, c.polish_iterations, c.tessellation) == (800, 0, (21, 31))
+    assert c.weight_bounds == (0.5, 2.0) and c.min_knot_gap == 0.1 and c.holdout == 0.0
+    assert c.remove_outliers is True
+
+
+def test_to_dict_has_yaml_shape_and_round_trips():
+    c = FitConfig(orders=(4, 4), net_size=(8, 9), swarm=SwarmConfig(seed=3))
+    d = c.to_dict()
+    assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
+                       "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
+                       "min_knot_gap", "holdout", "remove_outliers"]
+    assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
+    assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
+                          "c2": 1.5, "seed": 3}
+    assert config_from_dict(d) == c
+
+
+def test_empty_file_gives_defaults(tmp_path):
+    assert load_config(write(tmp_path, "# nothing set\n")) == FitConfig()
+
+
+def test_with_overrides_puts_swarm_keys_in_swarm():
+    c = FitConfig().with_overrides(seed=11, particles=9, iterations=None, topology="torus",
+                                   **{"swarm.c1": 1.0})
+    assert c.swarm == SwarmConfig(particles=9, iterations=300, c1=1.0, seed=11)
+    assert c.topology == "torus"
+    assert c.orders == (3, 3)
+
+
+def test_with_overrides_validates_and_names_the_key():
+    with pytest.raises(ConfigError, match=r"^command-line options: config key "
+                                          r"'swarm.particles': expected a positive integer, got 0$"):
+        FitConfig().with_overrides(particles=0)
+
+
+def test_dataclass_validates_itself():
+    with pytest.raises(ConfigError, match="'orders': order 5 in v is larger than net_size 4"):
+        FitConfig(orders=(3, 5), net_size=(5, 4))
+    assert FitConfig(orders=[4, 4], net_size=[6, 6]).orders == (4, 4)  # lists normalised
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_shipped_config_loads(path):
+    c = load_config(path)
+    assert all(k <= n for k, n in zip(c.orders, c.net_size))
+
+
+def test_shipped_configs_have_the_documented_values():
+    assert load_config(REPO / "configs" / "paper_patch.yaml") == FitConfig()
+    patch = load_config(REPO / "configs" / "patch.yaml")
+    assert (patch.orders, patch.net_size, patch.topology) == ((4, 4), (8, 8), "open")
+    assert patch.swarm == SwarmConfig()
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "data_samples").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_every_sample_config_loads(path):
+    load_config(path)
+
+
+# ---- errors name the file and the key --------------------------------------
+
+@pytest.mark.parametrize("text, expected", [
+    ("swarm:\n  partciles: 3\n",
+     "cfg.yaml: unknown config key 'swarm.partciles' (known: particles, iterations, inertia, "
+     "c1, c2, seed); did you mean 'swarm.particles'?"),
+    ("net_sise: [5, 5]\n", "cfg.yaml: unknown config key 'net_sise'"),
+    ("swarm:\n  particles: -3\n",
+     "cfg.yaml: config key 'swarm.particles': expected a positive integer, got -3"),
+    ("swarm:\n  particles: true\n",
+     "cfg.yaml: config key 'swarm.particles': expected a positive integer, got true"),
+    ("swarm:\n  iterations: 0\n",
+     "cfg.yaml: config key 'swarm.iterations': expected a positive integer, got 0"),
+    ("swarm:\n  iterations: 10.5\n",
+     "cfg.yaml: config key 'swarm.iterations': expected a positive integer, got 10.5"),
+    ("swarm:\n  seed: -1\n", "cfg.yaml: config key 'swarm.seed': expected an integer >= 0, got -1"),
+    ("swarm:\n  inertia: fast\n",
+     "cfg.yaml: config key 'swarm.inertia': expected a finite number >= 0, got 'fast'"),
+    ("swarm:\n  c1: .nan\n", "cfg.yaml: config key 'swarm.c1': expected a finite number >= 0, got nan"),
+    ("swarm: 40\n", "cfg.yaml: config key 'swarm': expected a mapping, got 40"),
+    ("orders: [6, 3]\nnet_size: [5, 5]\n",
+     "cfg.yaml: config key 'orders': order 6 in u is larger than net_size 5"),
+    ("orders: [3, 3, 3]\n", "cfg.yaml: config key 'orders': expected a list of 2 integers >= 2"),
+    ("orders: 3\n", "cfg.yaml: config key 'orders': expected a list of 2 integers >= 2"),
+    ("orders: [1, 3]\n", "cfg.yaml: config key 'orders': expected a list of 2 integers >= 2"),
+    ("orders: [true, 3]\n", "cfg.yaml: config key 'orders': expected a list of 2 integers >= 2"),
+    ("net_size: [5, -5]\n", "cfg.yaml: config key 'net_size': expected a list of 2 positive integers"),
+    ("topology: klein\n",
+     "cfg.yaml: config key 'topology': expected one of open, cylinder, sphere, torus, auto, "
+     "got 'klein'"),
+    ("strategy: random\n", "cfg.yaml: config key 'strategy': expected one of hybrid, full"),
+    ("smoothing: -1e-3\n", "cfg.yaml: config key 'smoothing': expected a finite number >= 0, "
+                           "got -0.001"),
+    ("swarm_points: 0\n", "cfg.yaml: config key 'swarm_points': expected a positive integer, got 0"),
+    ("polish_iterations: -1\n", "cfg.yaml: config key 'polish_iterations': expected an integer >= 0"),
+    ("tessellation: [1, 10]\n", "cfg.yaml: config key 'tessellation': expected a list of 2 integers >= 2"),
+    ("weight_bounds: [1.5, 5]\n", "cfg.yaml: config key 'weight_bounds': expected [lo, hi] with "
+                                  "0 < lo <= 1 <= hi, got [1.5, 5.0]"),
+    ("weight_bounds: [0, 5]\n", "cfg.yaml: config key 'weight_bounds': expected a list of 2 "
+                                "positive numbers"),
+    ("min_knot_gap: 1\n", "cfg.yaml: config key 'min_knot_gap': expected a number in (0, 1), got 1"),
+    ("holdout: 0.5\n", "cfg.yaml: config key 'holdout': expected a number in [0, 0.5), got 0.5"),
+    ("remove_outliers: 1\n", "cfg.yaml: config key 'remove_outliers': expected true or false, got 1"),
+    ("- orders\n- net_size\n", "cfg.yaml: the top level must be a mapping of config keys"),
+])
+def test_error_names_file_and_key(tmp_path, text, expected):
+    assert error_of(tmp_path, text).startswith(expected)
+
+
+def test_malformed_yaml_names_file_and_line(tmp_path):
+    message = error_of(tmp_path, "orders: [3, 3\nnet_size: [5, 5]\n")
+    assert message.startswith("malformed YAML in cfg.yaml: ")
+    assert "line 2" in message
+
+
+def test_duplicate_key_is_an_error(tmp_path):
+    message = error_of(tmp_path, "orders: [3, 3]\norders: [4, 4]\n")
+    assert "malformed YAML" in message and "duplicate key 'orders'" in message and "line 2" in message
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match=r"nope\.yaml: config file not found$"):
+        load_config(tmp_path / "nope.yaml")
+
+
+def test_directory(tmp_path):
+    with pytest.raises(ConfigError, match="is a directory"):
+        load_config(tmp_path)
+
+
+def test_not_utf8(tmp_path):
+    path = tmp_path / "cfg.yaml"
+    path.write_bytes(b"orders: [3, 3]\n\xff\xfe\n")
+    with pytest.raises(ConfigError, match=r"cfg\.yaml: config file is not UTF-8 text"):
+        load_config(path)
