@@ -146,13 +146,17 @@ def test_directory(tmp_path):
         read_cloud(tmp_path / "d.ply")
 
 
-@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root reads anything")
-def test_unreadable(tmp_path):
+def test_unreadable(tmp_path, monkeypatch):
     path = tmp_path / "a.xyz"
     path.write_text("1 2 3\n")
-    path.chmod(0)
-    with pytest.raises(InputError, match="cannot read file"):
+
+    def denied(*args, **kwargs):  # chmod 0 does not stop root, so deny in open()
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(pio, "open", denied, raising=False)
+    with pytest.raises(InputError) as info:
         read_cloud(path)
+    assert str(info.value) == f"{path}: cannot read file (Permission denied)"
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".xyz"])
