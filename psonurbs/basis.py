@@ -30,6 +30,12 @@ def uniform_inner_knots(count: int) -> np.ndarray:
     return np.arange(1, count + 1) / (count + 1)
 
 
+def random_inner_knots(count: int, gap: float, rng: np.random.Generator) -> np.ndarray:
+    """Random increasing knots in (0, 1) with every gap (ends included) at least ``gap``."""
+    spacing = gap + (1.0 - (count + 1) * gap) * rng.dirichlet(np.ones(count + 1))
+    return np.cumsum(spacing)[:-1]
+
+
 def clamped_knots(n: int, degree: int, inner: np.ndarray | None = None) -> np.ndarray:
     """Full clamped knot vector for ``n`` basis functions (uniform inner knots by default)."""
     count = n - degree - 1
@@ -74,10 +80,12 @@ def design_matrix(x: np.ndarray, knots: np.ndarray, degree: int, derivative: int
     """
     knots = np.asarray(knots, float)
     x = np.clip(np.asarray(x, float), knots[degree], knots[-degree - 1])
-    if derivative == 0:
-        return BSpline.design_matrix(x, knots, degree)
     n = len(knots) - degree - 1
     k = degree + 1
+    if len(x) == 0:
+        return sp.csr_array((np.zeros(0), np.zeros(0, np.int32), np.zeros(1, np.int32)), shape=(0, n))
+    if derivative == 0:
+        return BSpline.design_matrix(x, knots, degree)
     if degree == 0:
         lower_vals = np.zeros((len(x), 0))
         first = np.searchsorted(knots, x, side="right") - 1
@@ -85,7 +93,7 @@ def design_matrix(x: np.ndarray, knots: np.ndarray, degree: int, derivative: int
     else:
         lower = design_matrix(x, knots[1:-1], degree - 1, derivative - 1)
         lower_vals = lower.data.reshape(len(x), degree)
-        first = lower.indices.reshape(len(x), degree)[:, 0] if len(x) else np.zeros(0, int)
+        first = lower.indices.reshape(len(x), degree)[:, 0]
     # lower column m is N_{m+1,p-1}; row r's support in the degree-p basis is first..first+p
     padded = np.zeros((len(x), k + 1))
     padded[:, 1:k] = lower_vals

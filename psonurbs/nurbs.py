@@ -53,10 +53,10 @@ class NurbsSurface:
         if len(self.knots_u) != nu + self.degree_u + 1 or len(self.knots_v) != nv + self.degree_v + 1:
             raise ValueError(f"knot vectors of length {len(self.knots_u)}, {len(self.knots_v)} do not "
                              f"fit a {nu} x {nv} net of degrees {self.degree_u}, {self.degree_v}")
-        if np.any(np.diff(self.knots_u) < 0) or np.any(np.diff(self.knots_v) < 0):
-            raise ValueError("knot vectors must be non-decreasing")
-        if np.any(self.weights <= 0):
-            raise ValueError("weights must be positive")
+        if not (np.all(np.diff(self.knots_u) >= 0) and np.all(np.diff(self.knots_v) >= 0)):
+            raise ValueError("knot vectors must be finite and non-decreasing")
+        if not np.all(self.weights > 0) or not np.all(np.isfinite(self.weights)):
+            raise ValueError("weights must be finite and positive")
 
     @property
     def shape(self) -> tuple[int, int]:

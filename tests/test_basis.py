@@ -462,10 +462,6 @@ def test_tensor_basis_index_layout_by_hand():
 # Empty input
 # ---------------------------------------------------------------------------
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason=(
-    "bug: design_matrix(x=[]) raises 'ValueError: min() arg is an empty sequence' from "
-    "scipy's BSpline.design_matrix, although design_matrix (len(x) guard in the "
-    "derivative branch) and tensor_basis (n_pts guard) are written to accept zero rows"))
 @pytest.mark.parametrize("derivative", [0, 1])
 def test_design_matrix_of_no_points_is_empty(derivative):
     t = clamped_knots(6, 3)

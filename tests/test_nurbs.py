@@ -475,10 +475,6 @@ def test_rational_basis_does_not_modify_its_input():
     np.testing.assert_array_equal(T.toarray(), before)
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason=(
-    "bug: evaluating at zero parameters raises 'ValueError: min() arg is an empty "
-    "sequence' (scipy's BSpline.design_matrix on an empty x, via basis.design_matrix) "
-    "instead of returning a (0, 3) array"))
 def test_evaluate_no_points_gives_empty_array():
     surf = random_surface(71)
     assert surf.evaluate(np.array([]), np.array([])).shape == (0, 3)
