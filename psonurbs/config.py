@@ -151,7 +151,8 @@ class FitConfig:
     tessellation: mesh resolution (n_u, n_v), each >= 2.
     weight_bounds: (lo, hi) bounds on the NURBS weights, 0 < lo <= 1 <= hi.
     min_knot_gap: minimum gap between knots, as a fraction of the uniform spacing.
-    holdout: fraction of points held out to measure generalisation, in [0, 0.5).
+    cross_validation: judge the swarm's particles by their leave-one-out error (true)
+        or by the plain fit error on the points they were fitted to (false).
     remove_outliers: drop statistical outliers before fitting.
     """
 
@@ -166,7 +167,7 @@ class FitConfig:
     tessellation: tuple[int, int] = (101, 101)
     weight_bounds: tuple[float, float] = (0.2, 5.0)
     min_knot_gap: float = 0.2
-    holdout: float = 0.2
+    cross_validation: bool = True
     remove_outliers: bool = False
 
     def __post_init__(self) -> None:
@@ -212,10 +213,9 @@ class FitConfig:
         put("weight_bounds", (lo, hi))
         put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
                                    what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
-        put("holdout", _float("holdout", self.holdout, what="a number in [0, 0.5)",
-                              ok=lambda x: 0 <= x < 0.5))
-        if not isinstance(self.remove_outliers, bool):
-            raise _fail("remove_outliers", "true or false", self.remove_outliers)
+        for name in ("cross_validation", "remove_outliers"):
+            if not isinstance(getattr(self, name), bool):
+                raise _fail(name, "true or false", getattr(self, name))
 
     @property
     def degrees(self) -> tuple[int, int]:

@@ -1,18 +1,24 @@
-"""Control points by regularised linear least squares, and its cross-validated error.
+"""Control points by regularised linear least squares, and its leave-one-out error.
 
 With knots, weights and parameters fixed, the surface is linear in its control points:
 ``S = R P`` with R the rational basis at the points. We solve
 
     min_P  |R P - X|^2 + lam |L P|^2,       lam = smoothing * tr(R^T R) / tr(L^T L)
 
-by the normal equations and a Cholesky factorisation (the systems have at most a few
-hundred unknowns). L is the net's thin-plate operator: it decides the net where data
-are thin (16 points on a 5 x 5 net) and keeps it from flapping into empty regions.
-The smoothing weight is relative, so it means the same for any cloud size or net.
+by the normal equations ``M P = R^T X``, ``M = R^T R + lam L^T L``, and a Cholesky
+factorisation (at most a few hundred unknowns). L is the net's thin-plate operator: it
+decides the net where data are thin (16 points on a 5 x 5 net) and keeps it from
+flapping into empty regions. The smoothing weight is relative, so it means the same
+for any cloud size or net.
+
+The fit is a linear smoother ``X_hat = H X`` with ``H = R M^-1 R^T``, so the error at
+point i of the fit that did not see point i is exact and cheap (no refit):
+``e_i / (1 - h_ii)`` with ``h_ii = r_i^T M^-1 r_i``.
 
 Every point's row of R has the same number m of non-zeros, so R is kept as two dense
-(N, m) arrays (values, columns) and the Gram matrices are assembled with one
-``bincount``: no Python loop over points, and K folds cost one pass.
+(N, m) arrays (values, columns). Points in one knot-span cell share their columns, so
+the Gram matrix is a sum of dense m x m blocks ``B_c^T B_c``, one small matrix
+product per cell, and h_ii uses the matching m x m blocks of M^-1.
 """
 from __future__ import annotations
 
@@ -25,47 +31,84 @@ import scipy.sparse as sp
 
 @dataclass
 class Rows:
-    """A sparse matrix with m entries in every row, as (N, m) values and columns."""
+    """A sparse matrix with m entries in every row, as (N, m) values and columns.
+
+    ``cells`` labels the rows by knot-span cell: rows of one cell share their columns,
+    so products like ``R^T R`` are sums of dense m x m blocks, one per cell, each a
+    small matrix product (:class:`CellBlocks`).
+    """
 
     values: np.ndarray
     columns: np.ndarray
     n_columns: int
+    cells: np.ndarray
 
     @classmethod
     def from_csr(cls, mat: sp.csr_array, column_map: np.ndarray | None = None) -> "Rows":
         n = mat.shape[0]
         m = int(mat.indptr[1] - mat.indptr[0]) if n else 0
         cols = mat.indices.reshape(n, m)
+        cells = cols[:, 0].copy() if m else np.zeros(n, np.int64)
         n_cols = mat.shape[1]
         if column_map is not None:
             cols, n_cols = column_map[cols], int(column_map.max()) + 1
-        return cls(mat.data.reshape(n, m), cols, n_cols)
+        return cls(mat.data.reshape(n, m), cols, n_cols, cells)
 
     def rational(self, weights: np.ndarray) -> "Rows":
         """Rows of the rational basis: ``w_c B_c / sum_c w_c B_c`` (weights per column)."""
         wb = self.values * weights[self.columns]
-        return Rows(wb / wb.sum(axis=1, keepdims=True), self.columns, self.n_columns)
+        return Rows(wb / wb.sum(axis=1, keepdims=True), self.columns, self.n_columns, self.cells)
 
     def __matmul__(self, coeffs: np.ndarray) -> np.ndarray:
         return np.einsum("nm,nm...->n...", self.values, coeffs[self.columns])
 
-    def gram(self, groups: np.ndarray | None = None, n_groups: int = 1) -> np.ndarray:
-        """``R_g^T R_g`` for each group of rows, shape (n_groups, n, n)."""
-        n, (rows, m) = self.n_columns, self.values.shape
-        g = np.zeros(rows, np.int64) if groups is None else groups
-        idx = (g[:, None, None] * n + self.columns[:, :, None]) * n + self.columns[:, None, :]
-        val = self.values[:, :, None] * self.values[:, None, :]
-        return np.bincount(idx.ravel(), val.ravel(), n_groups * n * n).reshape(n_groups, n, n)
+    def blocks(self) -> "CellBlocks":
+        return CellBlocks(self)
 
-    def project(self, data: np.ndarray, groups: np.ndarray | None = None, n_groups: int = 1) -> np.ndarray:
-        """``R_g^T X_g`` for each group, shape (n_groups, n, 3)."""
-        n = self.n_columns
-        g = np.zeros(len(data), np.int64) if groups is None else groups
-        idx = (g[:, None] * n + self.columns).ravel()
-        out = np.empty((n_groups * n, data.shape[1]))
-        for c in range(data.shape[1]):
-            out[:, c] = np.bincount(idx, (self.values * data[:, c:c + 1]).ravel(), n_groups * n)
-        return out.reshape(n_groups, n, data.shape[1])
+    def gram(self) -> np.ndarray:
+        """``R^T R``, shape (n, n)."""
+        return self.blocks().gram()
+
+    def project(self, data: np.ndarray) -> np.ndarray:
+        """``R^T X``, shape (n, 3)."""
+        cols = self.columns.ravel()
+        return np.stack([np.bincount(cols, (self.values * data[:, c:c + 1]).ravel(), self.n_columns)
+                         for c in range(data.shape[1])], axis=1)
+
+
+class CellBlocks:
+    """The rows grouped by cell into a zero-padded (cells, most rows, m) array."""
+
+    def __init__(self, rows: Rows):
+        n_rows, m = rows.values.shape
+        self.rows = rows
+        self.order = np.argsort(rows.cells, kind="stable")
+        sorted_cells = rows.cells[self.order]
+        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+        counts = np.diff(np.r_[starts, n_rows])
+        self.group = np.repeat(np.arange(len(starts)), counts)
+        self.slot = np.arange(n_rows) - np.repeat(starts, counts)
+        self.padded = np.zeros((len(starts), counts.max(initial=0), m))
+        self.padded[self.group, self.slot] = rows.values[self.order]
+        self.columns = rows.columns[self.order[starts]]  # (cells, m)
+
+    def _scatter_index(self) -> np.ndarray:
+        n = self.rows.n_columns
+        return self.columns[:, :, None] * n + self.columns[:, None, :]
+
+    def gram(self) -> np.ndarray:
+        """``R^T R = sum over cells of B_c^T B_c`` placed at the cell's columns."""
+        n = self.rows.n_columns
+        local = np.matmul(self.padded.transpose(0, 2, 1), self.padded)
+        return np.bincount(self._scatter_index().ravel(), local.ravel(), n * n).reshape(n, n)
+
+    def quadratic_forms(self, matrix: np.ndarray) -> np.ndarray:
+        """``r_i^T A r_i`` for every row i (in the rows' original order)."""
+        local = matrix.ravel()[self._scatter_index()]  # (cells, m, m)
+        forms = np.sum(np.matmul(self.padded, local) * self.padded, axis=2)
+        out = np.empty(len(self.order))
+        out[self.order] = forms[self.group, self.slot]
+        return out
 
 
 class RegularisedLeastSquares:
@@ -76,30 +119,25 @@ class RegularisedLeastSquares:
         self.penalty_trace = float(np.trace(self.penalty))
         self.smoothing = smoothing
 
-    def _system(self, gram: np.ndarray, reference_trace: float) -> np.ndarray:
-        lam = self.smoothing * reference_trace / self.penalty_trace if self.penalty_trace > 0 else 0.0
-        ridge = 1e-12 * reference_trace / len(gram)
-        return gram + lam * self.penalty + ridge * np.eye(len(gram))
+    def normal_matrix(self, gram: np.ndarray) -> np.ndarray:
+        """``M = R^T R + lam L^T L`` plus a tiny ridge that keeps M positive definite."""
+        trace = float(np.trace(gram))
+        lam = self.smoothing * trace / self.penalty_trace if self.penalty_trace > 0 else 0.0
+        system = gram + lam * self.penalty
+        system[np.diag_indices_from(system)] += 1e-12 * trace / len(gram)
+        return system
 
     def solve(self, rows: Rows, data: np.ndarray) -> np.ndarray:
-        """Control points (n, 3) for all rows; raises LinAlgError if singular."""
-        gram = rows.gram()[0]
-        rhs = rows.project(data)[0]
-        return la.cho_solve(la.cho_factor(self._system(gram, np.trace(gram))), rhs)
+        """Control points (n, 3); raises LinAlgError if the system is singular."""
+        factor = la.cho_factor(self.normal_matrix(rows.gram()), check_finite=False)
+        return la.cho_solve(factor, rows.project(data), check_finite=False)
 
-    def cross_validated_rmse(self, rows: Rows, data: np.ndarray, folds: np.ndarray, n_folds: int) -> float:
-        """RMSE of every point predicted by the solve on the other folds (K-fold CV).
-
-        The fold Grams sum to the full Gram, so the K solves share one assembly.
-        """
-        grams = rows.gram(folds, n_folds)
-        rhs = rows.project(data, folds, n_folds)
-        total_gram, total_rhs = grams.sum(axis=0), rhs.sum(axis=0)
-        trace = float(np.trace(total_gram))
-        solutions = np.empty_like(rhs)
-        for f in range(n_folds):
-            system = self._system(total_gram - grams[f], trace)
-            solutions[f] = la.cho_solve(la.cho_factor(system, check_finite=False),
-                                        total_rhs - rhs[f], check_finite=False)
-        pred = np.einsum("nm,nmc->nc", rows.values, solutions[folds[:, None], rows.columns])
-        return float(np.sqrt(np.mean(np.sum((pred - data) ** 2, axis=1))))
+    def leave_one_out_rmse(self, rows: Rows, data: np.ndarray) -> float:
+        """RMSE of each point's residual under the fit that did not see it (exact LOO)."""
+        blocks = rows.blocks()
+        factor = la.cho_factor(self.normal_matrix(blocks.gram()), check_finite=False)
+        control = la.cho_solve(factor, rows.project(data), check_finite=False)
+        inverse = la.cho_solve(factor, np.eye(rows.n_columns), check_finite=False)
+        leverage = blocks.quadratic_forms(inverse)
+        residual = (rows @ control - data) / np.maximum(1.0 - leverage, 1e-12)[:, None]
+        return float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))

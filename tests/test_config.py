@@ -38,7 +38,7 @@ def test_defaults_match_the_spec():
     assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-4, 1500, 10)
     assert c.tessellation == (101, 101)
     assert c.weight_bounds == (0.2, 5.0)
-    assert (c.min_knot_gap, c.holdout, c.remove_outliers) == (0.2, 0.2, False)
+    assert (c.min_knot_gap, c.cross_validation, c.remove_outliers) == (0.2, True, False)
 
 
 def test_full_file_is_read_with_paper_names(tmp_path):
@@ -54,7 +54,7 @@ polish_iterations: 0
 tessellation: [21, 31]
 weight_bounds: [0.5, 2]
 min_knot_gap: 0.1
-holdout: 0
+cross_validation: false
 remove_outliers: true
 """))
     assert c.orders == (4, 3) and c.degrees == (3, 2) and c.net_size == (10, 6)
@@ -63,7 +63,7 @@ remove_outliers: true
     assert isinstance(c.swarm.c1, float)  # int accepted where a float is expected
     assert c.smoothing == 1e-3  # YAML 1.1 would read "1e-3" as a string
     assert (c.swarm_points, c.polish_iterations, c.tessellation) == (800, 0, (21, 31))
-    assert c.weight_bounds == (0.5, 2.0) and c.min_knot_gap == 0.1 and c.holdout == 0.0
+    assert c.weight_bounds == (0.5, 2.0) and c.min_knot_gap == 0.1 and c.cross_validation is False
     assert c.remove_outliers is True
 
 
@@ -72,7 +72,7 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "holdout", "remove_outliers"]
+                       "min_knot_gap", "cross_validation", "remove_outliers"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
@@ -163,7 +163,7 @@ def test_every_sample_config_loads(path):
     ("weight_bounds: [0, 5]\n", "cfg.yaml: config key 'weight_bounds': expected a list of 2 "
                                 "positive numbers"),
     ("min_knot_gap: 1\n", "cfg.yaml: config key 'min_knot_gap': expected a number in (0, 1), got 1"),
-    ("holdout: 0.5\n", "cfg.yaml: config key 'holdout': expected a number in [0, 0.5), got 0.5"),
+    ("cross_validation: 0.5\n", "cfg.yaml: config key 'cross_validation': expected true or false, got 0.5"),
     ("remove_outliers: 1\n", "cfg.yaml: config key 'remove_outliers': expected true or false, got 1"),
     ("- orders\n- net_size\n", "cfg.yaml: the top level must be a mapping of config keys"),
 ])
