@@ -2,8 +2,8 @@
 
 ``strategy: hybrid`` (default): the swarm searches what is non-linear (the inner knots
 of both directions and the weights); inside its fitness the control points come from
-the regularised least-squares solve, and a particle is judged by the K-fold
-cross-validated RMSE on points its solve did not see, so the swarm cannot win by
+the regularised least-squares solve, and a particle is judged by its leave-one-out
+RMSE (each point against the solve that did not see it), so the swarm cannot win by
 tuning knots to noise. ``strategy: full`` is the paper's own search space (Eq. 10,
 :mod:`psonurbs.paper`).
 """
@@ -15,12 +15,14 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .basis import random_inner_knots
 from .net import NetLayout
 from .nurbs import NurbsSurface
 from .organise import Cloud, organise, subsample
 from .parametrise import Parametrisation, parametrise_open
 from .polish import closest_parameters
-from .pso import Polytope, minimise
+from .paper import FullSearch
+from .pso import Polytope, SwarmResult, minimise
 from .solve import RegularisedLeastSquares
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
@@ -37,25 +39,6 @@ class FitResult:
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
 
 
-def ordered_knots_polytope(count: int, gap: float) -> Polytope:
-    """``gap <= t_1``, ``t_k + gap <= t_{k+1}``, ``t_c <= 1 - gap`` as ``A t <= b``."""
-    a = np.zeros((count + 1, count))
-    b = np.full(count + 1, -gap)
-    for k in range(count + 1):
-        if k > 0:
-            a[k, k - 1] = 1.0
-        if k < count:
-            a[k, k] = -1.0
-    b[count] = 1.0 - gap
-    return Polytope(a, b)
-
-
-def random_knots(count: int, gap: float, rng: np.random.Generator) -> np.ndarray:
-    """Random inner knots with every gap (ends included) at least ``gap``."""
-    spacing = gap + (1.0 - (count + 1) * gap) * rng.dirichlet(np.ones(count + 1))
-    return np.cumsum(spacing)[:-1]
-
-
 class KnotWeightSearch:
     """The hybrid encoding: a particle is (inner knots u, inner knots v, log-weights).
 
@@ -64,15 +47,13 @@ class KnotWeightSearch:
     """
 
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 uv: np.ndarray, n_folds: int, min_gap: float, weight_bounds: tuple[float, float],
-                 rng: np.random.Generator):
+                 uv: np.ndarray, cross_validation: bool, min_gap: float, weight_bounds: tuple[float, float]):
         self.layout, self.solver = layout, solver
         self.points, self.uv = points, uv
         self.counts = layout.inner_counts
         self.gaps = tuple(min_gap / (c + 1) for c in self.counts)
         self.log_bounds = np.log(weight_bounds)
-        self.n_folds = n_folds
-        self.folds = rng.permutation(len(points)) % n_folds if n_folds > 1 else None
+        self.cross_validation = cross_validation
 
     @property
     def dimension(self) -> int:
@@ -84,18 +65,11 @@ class KnotWeightSearch:
 
     def feasible(self) -> Polytope:
         cu, cv = self.counts
-        parts = []
-        for count, gap, offset in ((cu, self.gaps[0], 0), (cv, self.gaps[1], cu)):
-            p = ordered_knots_polytope(count, gap)
-            a = np.zeros((len(p.b), self.dimension))
-            a[:, offset:offset + count] = p.A
-            parts.append(Polytope(a, p.b))
         lo = np.concatenate([np.full(cu + cv, -np.inf), np.full(self.layout.n_free, self.log_bounds[0])])
         hi = np.concatenate([np.full(cu + cv, np.inf), np.full(self.layout.n_free, self.log_bounds[1])])
-        box = Polytope.box(lo, hi)
-        finite = np.isfinite(box.b)
-        parts.append(Polytope(box.A[finite], box.b[finite]))
-        return Polytope.stack(*parts)
+        return Polytope.stack(Polytope.ordered(cu, self.gaps[0]).embed(self.dimension, 0),
+                              Polytope.ordered(cv, self.gaps[1]).embed(self.dimension, cu),
+                              Polytope.box(lo, hi))
 
     def classical(self) -> np.ndarray:
         """Uniform knots and unit weights: the classical least-squares fit."""
@@ -110,7 +84,7 @@ class KnotWeightSearch:
         cu, cv = self.counts
         for k in range(1, n_particles):
             mix = k / max(n_particles - 1, 1)  # from near the classical fit to anywhere
-            target = np.concatenate([random_knots(cu, self.gaps[0], rng), random_knots(cv, self.gaps[1], rng),
+            target = np.concatenate([random_inner_knots(cu, self.gaps[0], rng), random_inner_knots(cv, self.gaps[1], rng),
                                      rng.uniform(*self.log_bounds, self.layout.n_free)])
             swarm.append(start + mix * rng.random() * (target - start))
         return np.array(swarm)
@@ -122,10 +96,10 @@ class KnotWeightSearch:
         inner_u, inner_v, weights = self.split(x)
         rows = self.layout.rows(self.uv, weights, inner_u, inner_v)
         try:
-            if self.folds is None:
-                control = self.solver.solve(rows, self.points)
-                return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))
-            return self.solver.cross_validated_rmse(rows, self.points, self.folds, self.n_folds)
+            if self.cross_validation:
+                return self.solver.leave_one_out_rmse(rows, self.points)
+            control = self.solver.solve(rows, self.points)
+            return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))
         except np.linalg.LinAlgError:
             return np.inf
 
@@ -165,52 +139,79 @@ def choose_orientation(search_for: Callable[[Parametrisation], KnotWeightSearch]
     return candidates[int(np.argmin(errors))]
 
 
+def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, config, rng: np.random.Generator,
+               progress) -> tuple[NurbsSurface, SwarmResult, dict]:
+    """Swarm over knots and weights (least-squares control points), then the polish."""
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
+    sample = subsample(len(cloud), config.swarm_points, rng)
+
+    def search_for(p: Parametrisation) -> KnotWeightSearch:
+        return KnotWeightSearch(layout, solver, cloud.points[sample], p.uv[sample], config.cross_validation,
+                                config.min_knot_gap, tuple(config.weight_bounds))
+
+    par = choose_orientation(search_for, par, config)
+    search = search_for(par)
+    swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
+                     config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
+                     rng, progress)
+    inner_u, inner_v, weights = search.split(swarm.best_position)
+    surface, _, steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
+                               config.polish_iterations)
+    info = {"strategy": "hybrid", "parametrisation": par.info,
+            "swarm": {"points": int(len(sample)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
+                      "classical_error": float(search.error(search.classical()))},
+            "polish_iterations": int(steps)}
+    return surface, swarm, info
+
+
+def run_full(cloud: Cloud, layout: NetLayout, par: Parametrisation, config, rng: np.random.Generator,
+             progress) -> tuple[NurbsSurface, SwarmResult, dict]:
+    """The paper's search space: the swarm's best surface is the result, unpolished."""
+    search = FullSearch(layout, cloud.points, par.uv, config.min_knot_gap, tuple(config.weight_bounds))
+    swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
+                     config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
+                     rng, progress)
+    info = {"strategy": "full", "parametrisation": par.info,
+            "swarm": {"points": len(cloud), "dimension": int(search.dimension),
+                      "evaluations": int(swarm.evaluations)}}
+    return search.surface(swarm.best_position), swarm, info
+
+
 def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, float], None] | None = None
                ) -> FitResult:
-    """Fit one cloud (N, 3) in its own units; see the module docstring."""
+    """Fit one cloud (N, 3) given in its own units; see the module docstring.
+
+    ``on_iteration(i, best, mean)`` is called after each swarm iteration (cloud units).
+    """
     points = np.asarray(points, float)
     with threadpool_limits(limits=1):
         cloud = organise(points, tuple(config.orders), config.remove_outliers)
         diag = cloud.frame.diagonal
         layout = layout_for(config)
         rng = np.random.default_rng(config.swarm.seed)
-        solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
         par = parametrise(cloud.points, config.topology)
-        sample = subsample(len(cloud), config.swarm_points, rng)
-        n_folds = int(round(1.0 / config.holdout)) if config.holdout > 0 else 1
-        n_folds = min(n_folds, len(sample))
-
-        def search_for(p: Parametrisation) -> KnotWeightSearch:
-            return KnotWeightSearch(layout, solver, cloud.points[sample], p.uv[sample], n_folds,
-                                    config.min_knot_gap, tuple(config.weight_bounds),
-                                    np.random.default_rng(config.swarm.seed))
-
-        par = choose_orientation(search_for, par, config)
-        search = search_for(par)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
-        swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
-                         config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
-                         rng, progress)
-        inner_u, inner_v, weights = search.split(swarm.best_position)
-        surface, _, polish_steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
-                                          config.polish_iterations)
-        world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
-                             cloud.frame.to_world(surface.control_points), surface.weights,
-                             surface.closed_u, surface.closed_v)
+        run = run_full if config.strategy == "full" else run_hybrid
+        surface, swarm, info = run(cloud, layout, par, config, rng, progress)
         _, dist = closest_parameters(surface, cloud.frame.to_local(points))
+    world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
+                         cloud.frame.to_world(surface.control_points), surface.weights,
+                         surface.closed_u, surface.closed_v)
     dist = dist * diag
     input_diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    rmse = float(np.sqrt(np.mean(dist ** 2)))
     metrics = {
-        "rmse": float(np.sqrt(np.mean(dist ** 2))),
+        "rmse": rmse,
         "max_error": float(dist.max()),
-        "rmse_relative": float(np.sqrt(np.mean(dist ** 2)) / input_diag),
-        "max_error_relative": float(dist.max() / input_diag),
+        "rmse_relative": rmse / input_diag,
+        "max_error_relative": float(dist.max()) / input_diag,
         "bbox_diagonal": input_diag,
         "points": int(len(points)),
         "control_points": int(layout.n_free),
-        "swarm_cv_rmse": float(swarm.best_value * diag),
-        "classical_cv_rmse": float(search.error(search.classical()) * diag),
+        "swarm_best_error": float(swarm.best_value * diag),
     }
+    if "classical_error" in info["swarm"]:
+        info["swarm"]["classical_error"] *= diag
     iterations = np.arange(1, len(swarm.best_history) + 1)
     curve = np.column_stack([iterations, swarm.best_history * diag, swarm.mean_history * diag])
     notes = []
@@ -219,10 +220,4 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
                      "the smoothness term decides between them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
-    info = {
-        "strategy": "hybrid",
-        "parametrisation": par.info,
-        "swarm": {"points": int(len(sample)), "folds": int(n_folds), "evaluations": int(swarm.evaluations)},
-        "polish_iterations": int(polish_steps),
-    }
     return FitResult(world, config.topology, metrics, curve, info, notes)

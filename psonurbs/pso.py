@@ -30,8 +30,34 @@ class Polytope:
 
     @classmethod
     def box(cls, lower: np.ndarray, upper: np.ndarray) -> "Polytope":
+        """``lower <= x <= upper``; infinite bounds are left out."""
         eye = np.eye(len(lower))
-        return cls(np.vstack([eye, -eye]), np.concatenate([upper, -np.asarray(lower)]))
+        a = np.vstack([eye, -eye])
+        b = np.concatenate([upper, -np.asarray(lower)])
+        keep = np.isfinite(b)
+        return cls(a[keep], b[keep])
+
+    @classmethod
+    def ordered(cls, count: int, gap: float) -> "Polytope":
+        """Increasing values in (0, 1) with gaps of at least ``gap`` (inner knots)::
+
+            gap <= t_1,   t_k + gap <= t_{k+1},   t_c <= 1 - gap
+        """
+        a = np.zeros((count + 1, count))
+        b = np.full(count + 1, -gap)
+        for k in range(count + 1):
+            if k > 0:
+                a[k, k - 1] = 1.0
+            if k < count:
+                a[k, k] = -1.0
+        b[count] = 1.0 - gap
+        return cls(a, b)
+
+    def embed(self, dimension: int, offset: int) -> "Polytope":
+        """The same constraints on coordinates offset.. of a larger vector."""
+        a = np.zeros((len(self.b), dimension))
+        a[:, offset:offset + self.A.shape[1]] = self.A
+        return Polytope(a, self.b)
 
     @classmethod
     def stack(cls, *parts: "Polytope") -> "Polytope":
