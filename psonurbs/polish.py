@@ -61,3 +61,59 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
             break
         uv[better], dist2[better] = trial[better], trial_d2[better]
     return uv, np.sqrt(dist2)
+
+
+def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
+    """A straight line ``across = a + b * along`` through the data's edge, evaluated at
+    every point: the least-squares line through the lowest (or highest) ``across``
+    value in each of ``bins`` slices of ``along``."""
+    slices = np.minimum((along * bins).astype(int), bins - 1)
+    order = np.lexsort((-across if upper else across, slices))
+    first = order[np.r_[True, slices[order][1:] != slices[order][:-1]]]
+    if len(first) < 2:
+        return np.full(len(along), across[first].mean())
+    b, a = np.polyfit(along[first], across[first], 1)
+    return a + b * along
+
+
+def align_to_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
+    """Map the data's extent in each open direction back onto [0, 1].
+
+    Parameter correction lets the data drift off the domain's edges, and a projection
+    on a slightly tilted plane shears them; the surface then extrapolates past the
+    data and overshoots the true boundary. For an open direction, each parameter is
+    rescaled between two straight lines fitted to the data's lower and upper edges
+    (as functions of the other parameter), so the data span the domain again.
+    """
+    out = uv.copy()
+    for k in (0, 1):
+        if closed[k]:
+            continue
+        across, along = out[:, k], out[:, 1 - k]
+        if closed[1 - k]:
+            lo, hi = np.full(len(across), across.min()), np.full(len(across), across.max())
+        else:
+            lo, hi = edge_line(along, across, False), edge_line(along, across, True)
+        width = hi - lo
+        ok = width > 1e-9
+        out[:, k] = np.clip(np.where(ok, (across - lo) / np.where(ok, width, 1.0), across), 0.0, 1.0)
+    return out
+
+
+def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
+           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int):
+    """Alternate the least-squares solve with parameter correction while the error falls.
+
+    Returns the best surface, its foot-point parameters and the rounds taken.
+    """
+    rmse, best, best_uv = np.inf, None, uv
+    for it in range(iterations + 1):
+        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
+        surface = layout.surface(control, weights, inner_u, inner_v)
+        new_uv, dist = closest_parameters(surface, points, uv)
+        new_rmse = float(np.sqrt(np.mean(dist ** 2)))
+        if new_rmse >= rmse * (1.0 - 1e-4):
+            break
+        rmse, best, best_uv = new_rmse, surface, new_uv
+        uv = align_to_domain(new_uv, layout.closed)
+    return best, best_uv, it

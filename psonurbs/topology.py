@@ -1,0 +1,107 @@
+"""Topologies: the net layout and first parameters of each, and choosing one from a cloud.
+
+    open      an open patch: clamped knots both ways
+    cylinder  closed in u (periodic), open in v: a tube with two rims
+    sphere    closed in u, open in v, the first and last rows collapsed to the poles
+    torus     closed in both directions
+
+``auto`` tries every topology whose parametrisation the cloud supports (a closed
+direction needs data all the way round; a sphere needs data near both poles; a
+cylinder needs rims, not ends that close to a point) and keeps the one whose
+classical fit (uniform knots, unit weights, least squares) has the smallest
+leave-one-out error. Every candidate's score or reason for rejection is reported.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .hybrid import KnotWeightSearch
+from .net import NetLayout
+from .parametrise import Parametrisation, parametrise
+from .solve import RegularisedLeastSquares
+
+LAYOUTS = {  # closed (u, v), poles
+    "open": ((False, False), False),
+    "cylinder": ((True, False), False),
+    "sphere": ((True, False), True),
+    "torus": ((True, True), False),
+}
+MAX_GAP = 0.25  # widest empty arc (in turns) that a closed direction may have
+POLE_REACH = 0.15  # a sphere's data must come this close (in v) to each pole
+RIM_RATIO = 0.3  # a cylinder's ends must keep this share of its middle radius
+
+
+def layout_for(topology: str, net_size, degrees) -> NetLayout:
+    closed, poles = LAYOUTS[topology]
+    return NetLayout(tuple(net_size), tuple(degrees), closed, poles)
+
+
+def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
+    """Why the cloud cannot carry this topology's parametrisation (None if it can)."""
+    info = par.info
+    gaps = info.get("angular_gaps") or ([info["angular_gap"]] if "angular_gap" in info else [])
+    for name, gap in zip(("around the axis", "around the tube"), gaps):
+        if gap > MAX_GAP:
+            return f"no data on {gap:.0%} of the turn {name}"
+    if topology == "sphere":
+        lo, hi = info["latitude_range"]
+        if lo > POLE_REACH or hi < 1.0 - POLE_REACH:
+            return "the data do not reach both poles"
+    if topology == "cylinder":
+        axis = np.asarray(info["axis"])
+        radial = points - points.mean(axis=0)
+        radial = np.linalg.norm(radial - np.outer(radial @ axis, axis), axis=1)
+        v = par.uv[:, 1]
+        middle = np.median(radial[(v > 0.3) & (v < 0.7)]) if np.any((v > 0.3) & (v < 0.7)) else 0.0
+        ends = [np.median(radial[v <= 0.05]) if np.any(v <= 0.05) else 0.0,
+                np.median(radial[v >= 0.95]) if np.any(v >= 0.95) else 0.0]
+        if middle <= 0 or min(ends) < RIM_RATIO * middle:
+            return "an end closes to a point (not a tube with two rims)"
+    return None
+
+
+def classical_error(layout: NetLayout, par: Parametrisation, points: np.ndarray, config) -> float:
+    """Leave-one-out RMSE of the classical fit (uniform knots, unit weights)."""
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
+    search = KnotWeightSearch(layout, solver, points, par.uv, config.cross_validation,
+                              config.min_knot_gap, tuple(config.weight_bounds))
+    return search.error(search.classical())
+
+
+def oriented(par: Parametrisation, layout: NetLayout, points: np.ndarray, config) -> Parametrisation:
+    """An open patch whose two directions differ (orders or net size) gets the (u, v)
+    roles that fit better; closed topologies have fixed roles."""
+    if any(layout.closed) or (layout.degrees[0] == layout.degrees[1] and layout.size[0] == layout.size[1]):
+        return par
+    candidates = [par, par.swapped()]
+    errors = [classical_error(layout, c, points, config) for c in candidates]
+    return candidates[int(np.argmin(errors))]
+
+
+def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, config) -> Parametrisation:
+    """First parameters of all points for a given topology (orientation settled on ``sample``)."""
+    par = parametrise(points, topology)
+    layout = layout_for(topology, config.net_size, config.degrees)
+    if oriented(Parametrisation(par.uv[sample], par.info), layout, points[sample], config).info.get("swapped"):
+        par = par.swapped()
+    return par
+
+
+def choose_topology(points: np.ndarray, sample: np.ndarray, config,
+                    log: Callable[[str], None] | None = None) -> tuple[str, Parametrisation, dict]:
+    """The topology that fits the cloud best, its parametrisation and every candidate's score."""
+    scores, best = {}, (np.inf, None, None)
+    for topology in LAYOUTS:
+        par = parametrise_for(points, sample, topology, config)
+        reason = None if topology == "open" else unsupported(par, points, topology)
+        if reason is not None:
+            scores[topology] = {"rejected": reason}
+            continue
+        layout = layout_for(topology, config.net_size, config.degrees)
+        error = classical_error(layout, Parametrisation(par.uv[sample], par.info), points[sample], config)
+        scores[topology] = {"classical_error_relative": float(error)}
+        if error < best[0]:
+            best = (error, topology, par)
+    return best[1], best[2], scores
