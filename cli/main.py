@@ -3,13 +3,17 @@
 The commands parse their arguments, call the library and report; no algorithms
 live here. Exit codes (also in ``psonurbs fit --help``):
 
-    0    every cloud was fitted
+    0    every cloud was fitted (and passed the gate)
     1    internal error (a bug in psonurbs)
     2    unusable input or config
+    3    a fit is above --max-rmse / --max-rmse-rel
     130  interrupted (Ctrl-C)
+
+When several apply, the most severe wins: 130 > 1 > 2 > 3 > 0.
 """
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -19,13 +23,12 @@ from pathlib import Path
 import click
 
 import psonurbs
+from psonurbs.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
+                            Gate, Job, Row, exit_code, expand_inputs, jobs_from_inputs,
+                            run_batch, write_summary)
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, InputError, PsonurbsError
-
-EXIT_OK = 0
-EXIT_INTERNAL = 1
-EXIT_INPUT = 2
-EXIT_INTERRUPTED = 130
+from psonurbs.exports import FORMATS, check_formats
 
 
 def _error(message: str) -> None:
@@ -38,14 +41,24 @@ def _cloud_error(path: Path, error: Exception) -> None:
     _error(message if message.startswith(prefix) else prefix + message)
 
 
-def _internal_error(error: BaseException) -> None:
+def _internal_error(error: BaseException | str, trace: str = "") -> None:
     debug = os.environ.get("PSONURBS_DEBUG") == "1"
     if debug:
-        traceback.print_exc()
-    detail = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-    click.echo(f"psonurbs: internal error: {detail}", err=True)
+        if trace:
+            click.echo(trace.rstrip("\n"), err=True)
+        elif isinstance(error, BaseException):
+            traceback.print_exc()
+    if isinstance(error, BaseException):
+        error = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+    click.echo(f"psonurbs: internal error: {error}", err=True)
     if not debug:
         click.echo("psonurbs: this is a bug; set PSONURBS_DEBUG=1 to see the traceback", err=True)
+
+
+def _finite(ctx, param, value):
+    if value is not None and not math.isfinite(value):
+        raise click.BadParameter(f"expected a finite number, got {value}")
+    return value
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -55,8 +68,7 @@ def cli() -> None:
 
 
 @cli.command("fit")
-@click.argument("clouds", nargs=-1, required=True, metavar="CLOUD [CLOUD ...]",
-                type=click.Path(path_type=Path))
+@click.argument("clouds", nargs=-1, required=True, metavar="CLOUD [CLOUD ...]")
 @click.option("--config", "-c", "config_path", metavar="CFG.yaml",
               type=click.Path(path_type=Path),
               help="YAML config (orders, net_size, topology, swarm, ...). "
@@ -71,23 +83,42 @@ def cli() -> None:
               help="Override topology.")
 @click.option("--strategy", type=click.Choice(STRATEGIES), default=None,
               help="Override strategy.")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Fit clouds in N worker processes (one BLAS thread each); the "
+                   "files are identical to --jobs 1.")
+@click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
+              help="Also export the exact surface: 3dm (Rhino; needs rhino3dm), iges "
+                   "(IGES 5.3 entity 128, STEM.igs), obj-nurbs (a 'cstype rat bspline' "
+                   "block in STEM.obj). Repeatable.")
+@click.option("--max-rmse", type=click.FloatRange(min=0), default=None, callback=_finite,
+              metavar="X", help="Gate: exit 3 if a fit's rmse is above X (cloud units).")
+@click.option("--max-rmse-rel", type=click.FloatRange(min=0), default=None, callback=_finite,
+              metavar="X", help="Gate: exit 3 if a fit's rmse divided by the cloud's "
+                                "bounding-box diagonal is above X.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @click.pass_context
-def fit(ctx: click.Context, clouds: tuple[Path, ...], config_path: Path | None, out_dir: Path,
+def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
-        topology: str | None, strategy: str | None, quiet: bool) -> None:
+        topology: str | None, strategy: str | None, jobs: int, formats: tuple[str, ...],
+        max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
     """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts).
 
-    For a cloud with file stem STEM, writes to DIR:
+    A CLOUD may be a file, a directory (its cloud files) or a quoted glob
+    pattern ('scans/*.ply', 'scans/**/*.xyz'). For a cloud with file stem
+    STEM, writes to DIR:
 
     \b
       STEM.json        the surface (degrees, knots, control net, weights),
                        metrics (rmse, max_error, ...), fit info and config
       STEM.ply, .obj   the tessellated surface as a triangle mesh
       STEM_error.csv   the error curve, one row per swarm iteration
+      STEM.igs, .3dm   with --format iges / 3dm
 
-    A cloud that cannot be used is reported on stderr and skipped; the others
-    are still fitted. The same inputs give byte-identical outputs.
+    and for the run, summary.csv and summary.json: one row per cloud (file,
+    points, topology, net, rmse, max_error, relative figures, seconds, status,
+    message). A cloud that cannot be used is reported on stderr and in the
+    summary, and the others are still fitted. The same inputs give
+    byte-identical outputs (3dm files aside: openNURBS stamps them).
 
     Examples:
 
@@ -95,19 +126,26 @@ def fit(ctx: click.Context, clouds: tuple[Path, ...], config_path: Path | None, 
       psonurbs fit scan.ply -o results/
       psonurbs fit data_samples/franke_noisy.ply -c data_samples/franke_noisy.yaml -o results/
       psonurbs fit scans/*.ply -c configs/patch.yaml -o results/ --seed 3 -q
+      psonurbs fit scans/ -o results/ --jobs 4 --format iges --format obj-nurbs
+      psonurbs fit 'scans/**/*.ply' -o results/ --max-rmse-rel 1e-3 -q   # CI gate
       psonurbs fit dome.xyz -o results/ --topology sphere --particles 20 --iterations 100
 
     Exit codes:
 
     \b
-      0    every cloud was fitted
+      0    every cloud was fitted (and passed the gate)
       1    internal error (a bug in psonurbs)
       2    unusable input or config (with several clouds: at least one
            could not be used; the others were still fitted)
+      3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
+           (its files are written; the others are still fitted)
       130  interrupted (Ctrl-C); no half-written files are left
+
+    When several apply, the most severe wins: 130 > 1 > 2 > 3.
     """
     try:
-        code = _fit_all(clouds, config_path, out_dir, quiet,
+        code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
+                        Gate(max_rmse, max_rmse_rel),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy))
     except KeyboardInterrupt:
@@ -116,10 +154,11 @@ def fit(ctx: click.Context, clouds: tuple[Path, ...], config_path: Path | None, 
     ctx.exit(code)
 
 
-def _fit_all(clouds: tuple[Path, ...], config_path: Path | None, out_dir: Path, quiet: bool,
-             overrides: dict) -> int:
+def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, quiet: bool,
+             jobs: int, formats: tuple[str, ...], gate: Gate, overrides: dict) -> int:
     try:
         config = load_config(config_path).with_overrides(**overrides)
+        formats = check_formats(formats)
     except ConfigError as e:
         _error(str(e))
         return EXIT_INPUT
@@ -128,78 +167,66 @@ def _fit_all(clouds: tuple[Path, ...], config_path: Path | None, out_dir: Path, 
     except OSError as e:
         _error(f"{out_dir}: cannot create the output directory ({e.strerror or e})")
         return EXIT_INPUT
-
-    failed = False
-    stems: dict[str, Path] = {}
-    for path in clouds:
-        stem = path.stem
-        if stem in stems:
-            _error(f"{path}: has the same name as {stems[stem]}; its outputs would overwrite "
-                   f"{out_dir / stem}.*, skipped")
-            failed = True
-            continue
-        stems[stem] = path
-        try:
-            _fit_one(path, config, out_dir, quiet)
-        except PsonurbsError as e:  # InputError, ConfigError
-            _cloud_error(path, e)
-            failed = True
-        except KeyboardInterrupt:
-            raise
-        except Exception as e:  # a bug: report it briefly and stop
-            _internal_error(e)
-            return EXIT_INTERNAL
-    return EXIT_INPUT if failed else EXIT_OK
+    work = jobs_from_inputs(expand_inputs(clouds), config)
+    rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet)
+    write_summary(out_dir, rows, gate)
+    return exit_code(rows)
 
 
-def _fit_one(path: Path, config, out_dir: Path, quiet: bool) -> None:
+def _progress_enabled(quiet: bool) -> bool:
+    return not quiet and sys.stderr.isatty()
+
+
+def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jobs: int,
+                    gate: Gate, quiet: bool) -> list[Row]:
+    """Run the batch with the progress bars; report each cloud as it finishes."""
     from tqdm import tqdm
 
-    from psonurbs.io import read_cloud, write_fit_outputs
-
-    points = read_cloud(path)
-    from psonurbs.fit import fit_points  # imported late: reading needs no numerics
-
-    start = time.perf_counter()
-    bar = tqdm(total=config.swarm.iterations, desc=path.name, unit="it", file=sys.stderr,
-               disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)
+    show = _progress_enabled(quiet)
+    several = len(work) > 1
+    clouds_bar = tqdm(total=len(work), desc="clouds", unit="cloud", file=sys.stderr,
+                      disable=not (show and several), leave=False, dynamic_ncols=True)
+    swarm_bar = None
+    if len(work) == 1:
+        swarm_bar = tqdm(total=work[0].config.swarm.iterations, desc=work[0].path.name, unit="it",
+                         file=sys.stderr, disable=not show, leave=False, dynamic_ncols=True)
 
     def on_iteration(iteration: int, best: float, mean: float) -> None:
-        if bar.n < bar.total:
-            bar.update(1)
-        bar.set_postfix_str(f"best {best:.3g}", refresh=False)
+        if swarm_bar is not None:
+            if swarm_bar.n < swarm_bar.total:
+                swarm_bar.update(1)
+            swarm_bar.set_postfix_str(f"best {best:.3g}", refresh=False)
+
+    def on_row(row: Row) -> None:
+        if swarm_bar is not None:
+            swarm_bar.close()
+        with tqdm.external_write_mode(file=sys.stderr):
+            _report(row)
+        clouds_bar.update(1)
 
     try:
-        result = fit_points(points, config, on_iteration=on_iteration)
+        return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
+                         on_row=on_row, on_iteration=on_iteration)
     finally:
-        bar.close()
+        if swarm_bar is not None:
+            swarm_bar.close()
+        clouds_bar.close()
 
-    surface = result.surface.to_dict()
-    document = {
-        "psonurbs_version": psonurbs.__version__,
-        "cloud": path.name,
-        "topology": result.topology,
-        "surface": surface,
-        "metrics": result.metrics,
-        "fit": result.info,
-        "notes": list(result.notes),
-        "config": config.to_dict(),
-    }
-    vertices, triangles = result.surface.tessellate(*config.tessellation)
-    try:
-        write_fit_outputs(out_dir, path.stem, document, vertices, triangles,
-                          result.curve_header, result.curve)
-    except OSError as e:
-        raise InputError(f"cannot write the outputs to {out_dir} ({e.strerror or e})") from None
-    seconds = time.perf_counter() - start
 
-    cp = surface.get("control_points", [])
-    nu = len(cp)
-    nv = len(cp[0]) if nu else 0
-    line = (f"{path.name}: {len(points)} points, net {nu}x{nv} ({result.topology}), "
-            f"rmse {result.metrics['rmse']:.2e}, max {result.metrics['max_error']:.2e}, "
-            f"{seconds:.1f} s")
-    click.echo("; ".join([line, *result.notes]))
+def _report(row: Row) -> None:
+    if row.status == "bad-input":
+        _error(row.message)
+        return
+    if row.status == "internal-error":
+        _internal_error(f"{row.file}: {row.message}", row.detail)
+        return
+    name = Path(row.file).name
+    line = (f"{name}: {row.points} points, net {row.net} ({row.topology}), "
+            f"rmse {row.rmse:.2e}, max {row.max_error:.2e}, {row.seconds:.1f} s")
+    click.echo("; ".join([line, *row.notes]))
+    if row.status == "gate-exceeded":
+        gate_reason = row.message.split("; ")[0]
+        click.echo(f"psonurbs: gate exceeded: {row.file}: {gate_reason}", err=True)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -21,7 +21,7 @@ import re
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -381,22 +381,34 @@ def render_csv(header: Sequence[str], rows: Any) -> str:
 
 def write_fit_outputs(out_dir: str | os.PathLike, stem: str, document: dict,
                       vertices: Any, triangles: Any, curve_header: Sequence[str],
-                      curve_rows: Any) -> dict[str, Path]:
+                      curve_rows: Any, *, obj_extra: str = "",
+                      extra_files: Mapping[str, bytes | str] | None = None) -> dict[str, Path]:
     """Write ``STEM.json``, ``STEM.obj``, ``STEM.ply`` and ``STEM_error.csv``.
 
-    All four are rendered in memory first; then each is written atomically, the
-    JSON last. If anything fails (including Ctrl-C), the files already placed for
-    this stem are removed and the exception propagates, so a fit leaves all four
-    files or none. ``out_dir`` is created if needed. Returns the paths by kind
-    (``"obj"``, ``"ply"``, ``"csv"``, ``"json"``).
+    ``obj_extra`` is appended to the OBJ text (the exact NURBS block of
+    ``--format obj-nurbs``); ``extra_files`` maps a suffix (``".igs"``, ``".3dm"``) to
+    the content of ``STEM + suffix``, written with the others.
+
+    All are rendered in memory first; then each is written atomically, the JSON
+    last. If anything fails (including Ctrl-C), the files already placed for this
+    stem are removed and the exception propagates, so a fit leaves all its files or
+    none. ``out_dir`` is created if needed. Returns the paths by kind (``"obj"``,
+    ``"ply"``, ``"csv"``, the extra suffixes, ``"json"``).
     """
     paths = output_paths(out_dir, stem)
     rendered = {
-        "obj": render_obj(vertices, triangles),
+        "obj": render_obj(vertices, triangles) + obj_extra,
         "ply": render_ply(vertices, triangles),
         "csv": render_csv(curve_header, curve_rows),
         "json": render_json(document),
     }
+    json_path = paths.pop("json")
+    for suffix, data in (extra_files or {}).items():
+        if not suffix.startswith(".") or suffix in (".json", ".obj", ".ply"):
+            raise ValueError(f"extra output suffix {suffix!r} is not allowed")
+        paths[suffix] = Path(out_dir) / f"{stem}{suffix}"
+        rendered[suffix] = data
+    paths["json"] = json_path
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     placed: list[Path] = []
     try:

@@ -1,0 +1,92 @@
+"""Distances from a point cloud to a saved surface (``psonurbs score``).
+
+The distance of a point is the distance to its closest point on the surface, found by
+:func:`psonurbs.polish.closest_parameters` (a global search on a tessellation, then
+Newton steps), the same projection the fitter uses for its own metrics.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .nurbs import NurbsSurface
+
+__all__ = ["load_surface", "point_distances", "score", "PERCENTILES"]
+
+PERCENTILES = (50, 90, 95, 99)
+
+
+def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
+    """The surface of a fit's ``STEM.json`` (or of a bare surface mapping), and the document.
+
+    Raises :class:`InputError` naming the file for anything that is not a surface.
+    """
+    path = Path(path)
+    name = str(path)
+    if not path.exists():
+        raise InputError(f"{name}: no such file")
+    if path.is_dir():
+        raise InputError(f"{name}: is a directory, not a surface JSON file")
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(f"{name}: not a surface JSON file (not UTF-8 text)") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{name}: malformed JSON ({e.msg} at line {e.lineno})") from None
+    except OSError as e:
+        raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
+    if not isinstance(document, dict):
+        raise InputError(f"{name}: not a surface JSON file (expected an object)")
+    data = document.get("surface", document)
+    if not isinstance(data, dict):
+        raise InputError(f"{name}: 'surface' is not an object")
+    missing = [k for k in ("degree_u", "degree_v", "knots_u", "knots_v", "control_points")
+               if k not in data]
+    if missing:
+        raise InputError(f"{name}: not a surface JSON file (missing {', '.join(missing)})")
+    try:
+        surface = NurbsSurface.from_dict(data)
+    except (ValueError, TypeError) as e:
+        raise InputError(f"{name}: invalid surface: {e}") from None
+    if not np.all(np.isfinite(surface.control_points)):
+        raise InputError(f"{name}: invalid surface: control points are not finite")
+    return surface, document
+
+
+def point_distances(surface: NurbsSurface, points: np.ndarray) -> np.ndarray:
+    """Distance of each point to the surface, shape (N,)."""
+    from .polish import closest_parameters
+
+    points = np.asarray(points, float).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0)
+    _, distances = closest_parameters(surface, points)
+    return np.asarray(distances, float)
+
+
+def score(surface: NurbsSurface, points: np.ndarray) -> dict:
+    """Figures of the distances from ``points`` to ``surface``.
+
+    ``rmse``, ``max_error``, ``mean_error`` and the percentiles ``p50`` ... ``p99``
+    are in the cloud's units; ``*_relative`` are divided by the cloud's bounding-box
+    diagonal (``bbox_diagonal``).
+    """
+    points = np.asarray(points, float).reshape(-1, 3)
+    d = point_distances(surface, points)
+    diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    out = {
+        "points": int(len(points)),
+        "rmse": float(np.sqrt(np.mean(d ** 2))),
+        "max_error": float(d.max()),
+        "mean_error": float(d.mean()),
+    }
+    for p, value in zip(PERCENTILES, np.percentile(d, PERCENTILES)):
+        out[f"p{p}"] = float(value)
+    out["bbox_diagonal"] = diag
+    for key in ("rmse", "max_error", "mean_error", *(f"p{p}" for p in PERCENTILES)):
+        out[f"{key}_relative"] = out[key] / diag if diag > 0 else None
+    return out
