@@ -13,6 +13,7 @@ Variants:
   classical  the same pipeline without a swarm: one particle, one iteration, i.e. uniform
              knots, unit weights, least squares, the same parametrisation and polish
   full       strategy full: the paper's own search space (Eq. 10)
+  auto       topology auto: the tool chooses the topology (the column says which)
 """
 from __future__ import annotations
 
@@ -26,9 +27,11 @@ from pathlib import Path
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
 OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder"]
+CLOSED_CASES = ["seed_sphere169", "cylinder", "sphere_noisy", "torus"]
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
-                "full": ["--strategy", "full"]}
-COLUMNS = ["rmse", "truth_rms", "truth_max", "cover_max", "mesh_vs_nurbs", "claim_err", "curve_ok"]
+                "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
+COLUMNS = ["topology", "rmse", "truth_rms", "truth_max", "cover_max", "seam", "pole_spread", "mesh_vs_nurbs",
+           "claim_err", "curve_ok"]
 
 
 def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path) -> dict:
@@ -43,6 +46,9 @@ def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path) -> d
     score = subprocess.run([sys.executable, str(SHARED / "score.py"), str(cases_dir / f"{case}.ply"), str(out),
                             "--gt", str(cases_dir / f"{case}.gt.npz")], capture_output=True, text=True)
     result = json.loads(score.stdout.strip().splitlines()[-1])
+    result["topology"] = json.loads((out / f"{case}.json").read_text())["topology"]
+    seams = [result[k] for k in ("seam_u", "seam_v") if k in result]
+    result["seam"] = max(seams) if seams else None
     if result.get("claimed_rmse") and result.get("rmse"):
         result["claim_err"] = abs(result["claimed_rmse"] / result["rmse"] - 1.0)
     result["seconds"] = seconds
@@ -59,7 +65,7 @@ def cell(value) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="*", default=OPEN_CASES)
+    ap.add_argument("--cases", nargs="*", default=OPEN_CASES + CLOSED_CASES)
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"], choices=list(VARIANT_ARGS))
     ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
     args = ap.parse_args(argv)

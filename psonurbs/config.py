@@ -161,7 +161,7 @@ class FitConfig:
     topology: str = "open"
     strategy: str = "hybrid"
     swarm: SwarmConfig = field(default_factory=SwarmConfig)
-    smoothing: float = 1e-4
+    smoothing: float = 1e-6
     swarm_points: int = 1500
     polish_iterations: int = 10
     tessellation: tuple[int, int] = (101, 101)
@@ -187,6 +187,9 @@ class FitConfig:
                 raise ConfigError(
                     f"config key 'orders': order {k} in {direction} is larger than net_size {n}")
         put("topology", _choice("topology", self.topology, TOPOLOGIES))
+        if self.topology == "sphere" and self.net_size[1] < 3:
+            raise ConfigError(f"config key 'net_size': a sphere needs at least 3 control points along v "
+                              f"(the first and last collapse to the poles), got {self.net_size[1]}")
         put("strategy", _choice("strategy", self.strategy, STRATEGIES))
         swarm = self.swarm
         if swarm is None:

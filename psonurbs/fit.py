@@ -23,6 +23,7 @@ from .paper import FullSearch
 from .parametrise import Parametrisation
 from .polish import closest_parameters, polish
 from .pso import SwarmResult, minimise
+from .refine import refine_jointly
 from .solve import RegularisedLeastSquares
 from .topology import choose_topology, layout_for, parametrise_for
 
@@ -40,6 +41,10 @@ class FitResult:
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
 
 
+def rms(distances: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(distances ** 2)))
+
+
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots and weights (least-squares control points), then the polish."""
@@ -49,10 +54,16 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    inner_u, inner_v, weights = search.split(swarm.best_position)
-    surface, _, steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
-                               config.polish_iterations)
-    info = {"strategy": "hybrid", "parametrisation": par.info,
+    inner_u, inner_v, weights, smoothing = search.split(swarm.best_position)
+    solver = solver.with_smoothing(smoothing)
+    control, surface, uv, steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
+                                         config.polish_iterations)
+    control, weights, uv = refine_jointly(layout, solver, cloud.points, uv, control, weights, inner_u, inner_v,
+                                          np.log(config.weight_bounds))
+    refined = layout.surface(control, weights, inner_u, inner_v)
+    if rms(closest_parameters(refined, cloud.points, uv)[1]) <= rms(closest_parameters(surface, cloud.points)[1]):
+        surface = refined
+    info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(smoothing),
             "swarm": {"points": int(len(sample)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical()))},
             "polish_iterations": int(steps)}

@@ -104,9 +104,10 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
            weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int):
     """Alternate the least-squares solve with parameter correction while the error falls.
 
-    Returns the best surface, its foot-point parameters and the rounds taken.
+    Returns the best control points (free), their surface, its foot-point parameters
+    and the rounds taken.
     """
-    rmse, best, best_uv = np.inf, None, uv
+    rmse, best, best_uv, best_control = np.inf, None, uv, None
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
         surface = layout.surface(control, weights, inner_u, inner_v)
@@ -114,6 +115,6 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
         new_rmse = float(np.sqrt(np.mean(dist ** 2)))
         if new_rmse >= rmse * (1.0 - 1e-4):
             break
-        rmse, best, best_uv = new_rmse, surface, new_uv
+        rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
         uv = align_to_domain(new_uv, layout.closed)
-    return best, best_uv, it
+    return best_control, best, best_uv, it

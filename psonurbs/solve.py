@@ -22,6 +22,7 @@ product per cell, and h_ii uses the matching m x m blocks of M^-1.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,6 +119,12 @@ class RegularisedLeastSquares:
         self.penalty = (smoothness.T @ smoothness).toarray()
         self.penalty_trace = float(np.trace(self.penalty))
         self.smoothing = smoothing
+
+    def with_smoothing(self, smoothing: float) -> "RegularisedLeastSquares":
+        """The same operator with another smoothing weight (no recomputation)."""
+        other = copy.copy(self)
+        other.smoothing = float(smoothing)
+        return other
 
     def normal_matrix(self, gram: np.ndarray) -> np.ndarray:
         """``M = R^T R + lam L^T L`` plus a tiny ridge that keeps M positive definite."""

@@ -94,6 +94,9 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
     """The topology that fits the cloud best, its parametrisation and every candidate's score."""
     scores, best = {}, (np.inf, None, None)
     for topology in LAYOUTS:
+        if topology == "sphere" and config.net_size[1] < 3:
+            scores[topology] = {"rejected": "net_size along v is below 3"}
+            continue
         par = parametrise_for(points, sample, topology, config)
         reason = None if topology == "open" else unsupported(par, points, topology)
         if reason is not None:
