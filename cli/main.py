@@ -229,6 +229,150 @@ def _report(row: Row) -> None:
         click.echo(f"psonurbs: gate exceeded: {row.file}: {gate_reason}", err=True)
 
 
+@cli.command("score")
+@click.argument("surface_path", metavar="SURFACE.json", type=click.Path(path_type=Path))
+@click.argument("cloud", metavar="CLOUD", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@click.option("--max-rmse", type=click.FloatRange(min=0), default=None, callback=_finite,
+              metavar="X", help="Gate: exit 3 if the rmse is above X (cloud units).")
+@click.option("--max-rmse-rel", type=click.FloatRange(min=0), default=None, callback=_finite,
+              metavar="X", help="Gate: exit 3 if the rmse over the cloud's bounding-box "
+                                "diagonal is above X.")
+@click.pass_context
+def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: bool,
+                  max_rmse: float | None, max_rmse_rel: float | None) -> None:
+    """Distances from CLOUD to the surface saved in SURFACE.json.
+
+    SURFACE.json is a fit's STEM.json (or a bare surface object). Prints the
+    rmse, max, mean and percentiles of the point-to-surface distances, in the
+    cloud's units and relative to its bounding-box diagonal.
+
+    \b
+      psonurbs score results/scan.json new_scan.ply
+      psonurbs score results/scan.json new_scan.ply --json --max-rmse-rel 1e-3
+
+    Exit codes: 0 ok, 1 internal error, 2 unusable surface or cloud, 3 above
+    --max-rmse / --max-rmse-rel, 130 interrupted.
+    """
+    from psonurbs.io import read_cloud
+    from psonurbs.scoring import load_surface, score
+
+    try:
+        surface, _ = load_surface(surface_path)
+        points = read_cloud(cloud)
+        figures = score(surface, points)
+    except PsonurbsError as e:
+        _error(str(e))
+        ctx.exit(EXIT_INPUT)
+    except KeyboardInterrupt:
+        click.echo("psonurbs: interrupted", err=True)
+        ctx.exit(EXIT_INTERRUPTED)
+    except Exception as e:
+        _internal_error(e)
+        ctx.exit(EXIT_INTERNAL)
+    reason = Gate(max_rmse, max_rmse_rel).check(figures)
+    if as_json:
+        import json
+
+        click.echo(json.dumps({"surface": str(surface_path), "cloud": str(cloud), **figures}))
+    else:
+        rows = [("points", str(figures["points"]), "")]
+        for key, label in [("rmse", "rmse"), ("max_error", "max"), ("mean_error", "mean"),
+                           *[(k, k) for k in figures if k.startswith("p") and k[1:].isdigit()]]:
+            rel = figures[f"{key}_relative"]
+            rows.append((label, f"{figures[key]:.6g}", "" if rel is None else f"{rel:.3e}"))
+        rows.append(("bbox diagonal", f"{figures['bbox_diagonal']:.6g}", ""))
+        click.echo(f"{surface_path} vs {cloud}")
+        click.echo(f"  {'':<14}{'value':>14}  {'/ diagonal':>11}")
+        for label, value, rel in rows:
+            click.echo(f"  {label:<14}{value:>14}  {rel:>11}")
+    if reason:
+        click.echo(f"psonurbs: gate exceeded: {cloud}: {reason}", err=True)
+        ctx.exit(EXIT_GATE)
+    ctx.exit(EXIT_OK)
+
+
+@cli.command("plot")
+@click.argument("result", metavar="RESULT_DIR/STEM.json", type=click.Path(path_type=Path))
+@click.option("--cloud", type=click.Path(path_type=Path), default=None,
+              help="The fitted cloud (default: the JSON's 'cloud' file name, beside the "
+                   "JSON or in the current directory; without it, surface and net only).")
+@click.option("--out", "-o", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=None, help="Directory for the PNGs (default: beside the JSON).")
+@click.pass_context
+def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: Path | None) -> None:
+    """Draw a fit: PNG pictures beside its JSON (needs matplotlib; no display).
+
+    \b
+      STEM_curve.png     error curve: best and mean RMSE per iteration, log scale
+      STEM_views.png     cloud, fitted surface and control net from four viewpoints
+      STEM_distance.png  the points coloured by their distance to the surface
+      STEM_basis.png     the basis functions of both knot vectors
+
+    Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,
+    130 interrupted.
+    """
+    from psonurbs.plots import plot_result
+
+    try:
+        written, notes = plot_result(result, out_dir, cloud)
+    except PsonurbsError as e:
+        _error(str(e))
+        ctx.exit(EXIT_INPUT)
+    except KeyboardInterrupt:
+        click.echo("psonurbs: interrupted", err=True)
+        ctx.exit(EXIT_INTERRUPTED)
+    except Exception as e:
+        _internal_error(e)
+        ctx.exit(EXIT_INTERNAL)
+    for note in notes:
+        click.echo(f"psonurbs: note: {note}", err=True)
+    for path in written:
+        click.echo(str(path))
+    ctx.exit(EXIT_OK)
+
+
+@cli.command("demo")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Worker processes.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.pass_context
+def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> None:
+    """Write two sample clouds with their configs to OUT/clouds and fit them to OUT/results.
+
+    A first run without data of your own: a Gaussian bump (open patch) and a
+    quarter cylinder (exact only with rational weights), small swarms, a few
+    seconds. Then look at a fit with `psonurbs plot OUT/results/bump.json`.
+
+    Exit codes: as `psonurbs fit`.
+    """
+    from psonurbs.config import load_config
+    from psonurbs.demo import write_samples
+
+    try:
+        samples = write_samples(out_dir / "clouds")
+        work = [Job(cloud, load_config(config)) for cloud, config in samples]
+        results = out_dir / "results"
+        click.echo(f"wrote {len(samples)} sample clouds and their configs to {out_dir / 'clouds'}")
+        rows = _run_and_report(work, results, (), jobs, Gate(), quiet)
+        write_summary(results, rows)
+    except KeyboardInterrupt:
+        click.echo("psonurbs: interrupted", err=True)
+        ctx.exit(EXIT_INTERRUPTED)
+    except (OSError, PsonurbsError) as e:
+        _error(str(e))
+        ctx.exit(EXIT_INPUT)
+    code = exit_code(rows)
+    if code == EXIT_OK:
+        click.echo(f"results and summary.csv in {results}; next:")
+        cloud, config = samples[0]
+        click.echo(f"  psonurbs fit {cloud} -c {config} -o {results} --format iges")
+        click.echo(f"  psonurbs score {results / 'bump.json'} {samples[0][0]}")
+        click.echo(f"  psonurbs plot {results / 'bump.json'}")
+    ctx.exit(code)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point (``psonurbs``)."""
     cli.main(args=argv, prog_name="psonurbs")
