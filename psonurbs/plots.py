@@ -1,0 +1,243 @@
+"""Pictures of a fit (``psonurbs plot``): matplotlib, headless (Agg canvas, no display).
+
+From a fit's ``STEM.json`` (and ``STEM_error.csv`` beside it, and the cloud when it
+can be found) :func:`plot_result` writes:
+
+* ``STEM_curve.png``: the error curve, best and mean RMSE per swarm iteration, log y;
+* ``STEM_views.png``: the cloud with the fitted surface and its control net, from four
+  viewpoints (surface and net only when there is no cloud);
+* ``STEM_distance.png``: the points coloured by their distance to the surface, with a
+  histogram of the distances (only with a cloud);
+* ``STEM_basis.png``: the B-spline basis functions of both knot vectors (the paper's
+  Fig. 4), knots marked.
+
+Each picture has a fixed pixel size (:data:`SIZES`) and is written atomically.
+"""
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, InputError
+
+__all__ = ["SIZES", "plot_result", "find_cloud", "read_curve"]
+
+DPI = 100
+#: (width, height) in pixels of each picture, by name suffix.
+SIZES = {"curve": (900, 560), "views": (1200, 1000), "distance": (1200, 560), "basis": (900, 700)}
+MAX_DRAWN_POINTS = 6000
+
+
+def _matplotlib():
+    try:
+        from matplotlib.figure import Figure
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+    except ImportError:
+        raise ConfigError("psonurbs plot needs the optional package matplotlib, which is not "
+                          "installed: pip install 'psonurbs[plot]'") from None
+    return Figure, FigureCanvasAgg
+
+
+def _figure(kind: str):
+    Figure, FigureCanvasAgg = _matplotlib()
+    w, h = SIZES[kind]
+    fig = Figure(figsize=(w / DPI, h / DPI), dpi=DPI)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path: Path) -> Path:
+    from .io import atomic_write
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
+    return atomic_write(path, buffer.getvalue())
+
+
+def find_cloud(json_path: Path, document: dict) -> Path | None:
+    """The fit's cloud: the JSON's ``cloud`` file name beside the JSON, else in the cwd."""
+    name = document.get("cloud")
+    if not isinstance(name, str) or not name:
+        return None
+    for candidate in (json_path.parent / name, Path.cwd() / name):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def read_curve(path: Path) -> tuple[list[str], np.ndarray] | None:
+    """The error curve CSV (header, rows), or None if there is none."""
+    if not path.is_file():
+        return None
+    lines = path.read_text(encoding="utf-8").splitlines()
+    if len(lines) < 2:
+        return None
+    header = lines[0].split(",")
+    rows = np.array([[float(x) for x in line.split(",")] for line in lines[1:] if line.strip()])
+    return header, rows.reshape(-1, len(header))
+
+
+def _subsample(points: np.ndarray, n: int = MAX_DRAWN_POINTS) -> np.ndarray:
+    if len(points) <= n:
+        return points
+    return points[np.sort(np.random.default_rng(0).choice(len(points), n, replace=False))]
+
+
+def _equal_axes(ax, points: np.ndarray) -> None:
+    lo, hi = points.min(0), points.max(0)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12)
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+
+
+def plot_curve(header: list[str], rows: np.ndarray, title: str, path: Path) -> Path:
+    fig = _figure("curve")
+    ax = fig.add_subplot(1, 1, 1)
+    x = rows[:, header.index("iteration")] if "iteration" in header else np.arange(1, len(rows) + 1)
+    for k, name in enumerate(header):
+        if name == "iteration":
+            continue
+        y = np.where(np.isfinite(rows[:, k]) & (rows[:, k] > 0), rows[:, k], np.nan)
+        style = dict(lw=2.0) if "best" in name else dict(lw=1.2, ls="--")
+        ax.plot(x, y, label=name.replace("_", " "), **style)
+    ax.set_yscale("log")
+    ax.set_xlabel("swarm iteration")
+    ax.set_ylabel("RMSE (cloud units)")
+    ax.set_title(f"{title}: error curve")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_views(surface, points: np.ndarray | None, title: str, path: Path) -> Path:
+    fig = _figure("views")
+    grid = surface.evaluate_grid(*surface.parameter_grid(41, 41))
+    net = surface.control_points
+    every = [grid.reshape(-1, 3), net.reshape(-1, 3)]
+    if points is not None:
+        every.append(points)
+    bounds = np.concatenate(every)
+    drawn = None if points is None else _subsample(points)
+    views = [(25, -60, "perspective"), (25, 30, "side"), (90, -90, "top"), (0, -90, "front")]
+    for k, (elev, azim, name) in enumerate(views, 1):
+        ax = fig.add_subplot(2, 2, k, projection="3d")
+        ax.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], color="tab:blue", alpha=0.45,
+                        linewidth=0, antialiased=True, shade=True)
+        for i in range(net.shape[0]):
+            ax.plot(net[i, :, 0], net[i, :, 1], net[i, :, 2], color="tab:red", lw=0.8)
+        for j in range(net.shape[1]):
+            ax.plot(net[:, j, 0], net[:, j, 1], net[:, j, 2], color="tab:red", lw=0.8)
+        ax.scatter(net[..., 0].ravel(), net[..., 1].ravel(), net[..., 2].ravel(), color="tab:red", s=10)
+        if drawn is not None:
+            ax.scatter(drawn[:, 0], drawn[:, 1], drawn[:, 2], color="k", s=0.6, alpha=0.5,
+                       depthshade=False)
+        _equal_axes(ax, bounds)
+        ax.view_init(elev=elev, azim=azim)
+        ax.set_title(name, fontsize=10)
+        ax.tick_params(labelsize=7)
+    what = "cloud (black), surface (blue), control net (red)" if points is not None \
+        else "surface (blue), control net (red); no cloud found"
+    fig.suptitle(f"{title}: {what}")
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.03, top=0.92, wspace=0.05, hspace=0.12)
+    return _save(fig, path)
+
+
+def plot_distance(surface, points: np.ndarray, title: str, path: Path) -> Path:
+    from .scoring import point_distances
+
+    distances = point_distances(surface, points)
+    fig = _figure("distance")
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    keep = np.arange(len(points)) if len(points) <= MAX_DRAWN_POINTS else \
+        np.sort(np.random.default_rng(0).choice(len(points), MAX_DRAWN_POINTS, replace=False))
+    p, d = points[keep], distances[keep]
+    drawn = ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=d, cmap="viridis", s=3, depthshade=False)
+    _equal_axes(ax, points)
+    ax.view_init(elev=30, azim=-60)
+    ax.tick_params(labelsize=7)
+    fig.colorbar(drawn, ax=ax, shrink=0.7, label="distance to the surface")
+    hist = fig.add_subplot(1, 2, 2)
+    hist.hist(distances, bins=50, color="tab:green")
+    rmse = float(np.sqrt(np.mean(distances ** 2)))
+    hist.axvline(rmse, color="k", ls="--", label=f"rmse {rmse:.3g}")
+    hist.set_xlabel("distance to the surface (cloud units)")
+    hist.set_ylabel("points")
+    hist.legend()
+    fig.suptitle(f"{title}: {len(points)} points, max {distances.max():.3g}")
+    fig.subplots_adjust(left=0.02, right=0.97, bottom=0.1, top=0.9, wspace=0.25)
+    return _save(fig, path)
+
+
+def plot_basis(surface, title: str, path: Path) -> Path:
+    from .basis import design_matrix
+
+    fig = _figure("basis")
+    directions = [("u", surface.knots_u, surface.degree_u, surface.domain_u, surface.closed_u),
+                  ("v", surface.knots_v, surface.degree_v, surface.domain_v, surface.closed_v)]
+    for k, (name, knots, degree, (a, b), closed) in enumerate(directions, 1):
+        ax = fig.add_subplot(2, 1, k)
+        x = np.linspace(a, b, 600)
+        basis = design_matrix(x, knots, degree).toarray()
+        for i in range(basis.shape[1]):
+            if np.any(basis[:, i] > 0):
+                ax.plot(x, basis[:, i], lw=1.4)
+        ax.plot(x, basis.sum(axis=1), color="k", lw=0.8, ls=":", label="sum (partition of unity)")
+        inner = knots[(knots >= a) & (knots <= b)]
+        for t in inner:
+            ax.axvline(t, color="grey", lw=0.5, alpha=0.6)
+        ax.plot(inner, np.zeros_like(inner), "k^", ms=5, label="knots")
+        ax.set_xlim(a, b)
+        ax.set_ylim(-0.05, 1.1)
+        kind = "periodic" if closed else "clamped"
+        ax.set_title(f"{name}: degree {degree}, {basis.shape[1]} basis functions, {kind} knot vector",
+                     fontsize=10)
+        ax.legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"{title}: B-spline basis functions N_i,p")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None = None,
+                cloud: str | os.PathLike | None = None) -> tuple[list[Path], list[str]]:
+    """Write the pictures of one fit; returns (the PNG paths, notes for the user).
+
+    ``cloud`` defaults to :func:`find_cloud`. Raises :class:`InputError` for an
+    unusable JSON or cloud, :class:`ConfigError` without matplotlib.
+    """
+    from .io import read_cloud
+    from .scoring import load_surface
+
+    _matplotlib()
+    json_path = Path(json_path)
+    surface, document = load_surface(json_path)
+    stem = json_path.stem
+    out = Path(out_dir) if out_dir is not None else json_path.parent
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"{out}: cannot create the output directory ({e.strerror or e})") from None
+    notes: list[str] = []
+    if cloud is None:
+        cloud = find_cloud(json_path, document)
+        if cloud is None:
+            notes.append(f"cloud {document.get('cloud', '?')!s} not found beside {json_path} or in "
+                         "the current directory (use --cloud): drew the surface and net only")
+    points = read_cloud(cloud) if cloud is not None else None
+    title = stem
+    written: list[Path] = []
+    curve = read_curve(json_path.with_name(f"{stem}_error.csv"))
+    if curve is not None:
+        written.append(plot_curve(*curve, title, out / f"{stem}_curve.png"))
+    else:
+        notes.append(f"no error curve {stem}_error.csv beside the JSON: skipped {stem}_curve.png")
+    written.append(plot_views(surface, points, title, out / f"{stem}_views.png"))
+    if points is not None:
+        written.append(plot_distance(surface, points, title, out / f"{stem}_distance.png"))
+    written.append(plot_basis(surface, title, out / f"{stem}_basis.png"))
+    return written, notes
