@@ -1,0 +1,212 @@
+"""End-to-end fits (psonurbs.fit.fit_points) against known answers: an exactly
+representable quarter cylinder, closed cylinders and spheres, determinism, the swarm
+never worse than its classical start, the paper's full strategy, and the reported
+rmse against an independent dense-tessellation distance."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from psonurbs.config import config_from_dict
+from psonurbs.fit import fit_points
+from psonurbs.net import NetLayout
+from psonurbs.nurbs import NurbsSurface
+from psonurbs.polish import closest_parameters
+
+S2 = np.sqrt(2.0) / 2.0
+
+
+def config(**kw):
+    swarm = {"particles": 8, "iterations": 10, "seed": 1}
+    swarm.update(kw.pop("swarm", {}))
+    return config_from_dict({**kw, "swarm": swarm})
+
+
+def quarter_cylinder(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    a, v = rng.uniform(0, np.pi / 2, n), rng.uniform(0, 1, n)
+    return np.column_stack([np.cos(a), np.sin(a), 2 * v])
+
+
+def arc_invariants(surface: NurbsSurface) -> np.ndarray:
+    """w_mid / sqrt(w_end1 w_end2) along the direction of the JSON net with 3 points."""
+    d = surface.to_dict()
+    w = np.asarray(d["weights"])
+    cp = np.asarray(d["control_points"])
+    if cp.shape[0] != 3:
+        w = w.T
+    assert w.shape[0] == 3
+    return w[1] / np.sqrt(w[0] * w[2])
+
+
+@pytest.fixture(scope="module")
+def quarter_fit():
+    pts = quarter_cylinder()
+    return pts, fit_points(pts, config(orders=[3, 2], net_size=[3, 2]))
+
+
+def test_quarter_cylinder_is_fitted_exactly(quarter_fit):
+    pts, res = quarter_fit
+    assert res.topology == "open"
+    assert res.metrics["rmse_relative"] < 1e-5
+    assert res.metrics["points"] == 400 and res.metrics["control_points"] == 6
+    # the surface is the cylinder: every point of it at radius 1
+    grid = res.surface.evaluate_grid(*res.surface.parameter_grid(60, 60)).reshape(-1, 3)
+    assert np.abs(np.hypot(grid[:, 0], grid[:, 1]) - 1.0).max() < 1e-4
+    d = res.surface.to_dict()
+    assert sorted(np.asarray(d["control_points"]).shape[:2]) == [2, 3]
+    # a conic: the rational quadratic's shape factor is that of a circle arc of about 90 degrees
+    np.testing.assert_allclose(arc_invariants(res.surface), S2, atol=1e-2)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "bug: the fitted surface overshoots the data's extent (the domain is not pinned to the data after "
+    "polish.align_to_domain: at HEAD 40659bc the LM refine_jointly lets parameters drift off the "
+    "edges), so on this quarter cylinder the surface reaches z = -0.025 (data z >= 0) and the arc is "
+    "not the data's 90 degrees: w_mid/sqrt(w0 w2) = 0.710, 0.709 instead of sqrt(2)/2 = 0.70711"))
+def test_quarter_cylinder_weight_invariant_is_exactly_the_quarter_circle(quarter_fit):
+    pts, res = quarter_fit
+    np.testing.assert_allclose(arc_invariants(res.surface), S2, atol=1e-4)
+    grid = res.surface.evaluate_grid(*res.surface.parameter_grid(101, 101)).reshape(-1, 3)
+    assert grid[:, 2].min() > -2e-3 and grid[:, 2].max() < 2.002
+
+
+def test_full_cylinder_topology_closes_without_seam():
+    rng = np.random.default_rng(2)
+    a, h = rng.uniform(0, 2 * np.pi, 500), rng.uniform(0, 1, 500)
+    pts = np.column_stack([1.5 * np.cos(a) + 3.0, 1.5 * np.sin(a) - 1.0, 2.0 * h])
+    res = fit_points(pts, config(topology="cylinder", orders=[4, 2], net_size=[8, 2]))
+    d = res.surface.to_dict()
+    assert d["closed_u"] is True and d["closed_v"] is False
+    s = NurbsSurface.from_dict(d)
+    v = np.linspace(0, 1, 11)
+    gap = np.linalg.norm(s.evaluate(np.zeros(11), v) - s.evaluate(np.ones(11), v), axis=1).max()
+    assert gap < 1e-9 * res.metrics["bbox_diagonal"]
+    assert res.metrics["rmse_relative"] < 1e-3
+    # the fitted tube is the cylinder of radius 1.5 around (3, -1)
+    grid = s.evaluate_grid(*s.parameter_grid(80, 20)).reshape(-1, 3)
+    assert np.abs(np.hypot(grid[:, 0] - 3.0, grid[:, 1] + 1.0) - 1.5).max() < 5e-3 * 1.5
+
+
+def test_sphere_topology_collapses_poles_and_fits():
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(500, 3))
+    pts = 2.0 * d / np.linalg.norm(d, axis=1, keepdims=True) + [1.0, 0.0, -1.0]
+    res = fit_points(pts, config(topology="sphere", orders=[3, 3], net_size=[6, 5]))
+    assert res.topology == "sphere"
+    s = res.surface
+    assert s.closed_u and not s.closed_v
+    u = np.linspace(*s.domain_u, 64)
+    for v in s.domain_v:
+        row = s.evaluate(u, np.full_like(u, v))
+        assert np.ptp(row, axis=0).max() < 1e-9 * res.metrics["bbox_diagonal"]
+    cp = s.control_points
+    assert np.ptp(cp[:, 0], axis=0).max() < 1e-12 and np.ptp(cp[:, -1], axis=0).max() < 1e-12
+    assert res.metrics["rmse_relative"] < 5e-3
+    assert res.metrics["control_points"] == 6 * 3 + 2
+
+
+def franke(n=300, seed=4, noise=0.01):
+    rng = np.random.default_rng(seed)
+    x, y = rng.random((2, n))
+    z = (0.75 * np.exp(-((9 * x - 2) ** 2 + (9 * y - 2) ** 2) / 4) + 0.75 * np.exp(-(9 * x + 1) ** 2 / 49 - (9 * y + 1) / 10)
+         + 0.5 * np.exp(-((9 * x - 7) ** 2 + (9 * y - 3) ** 2) / 4) - 0.2 * np.exp(-(9 * x - 4) ** 2 - (9 * y - 7) ** 2))
+    return np.column_stack([x, y, z + noise * rng.normal(size=n)])
+
+
+@pytest.fixture(scope="module")
+def franke_fit():
+    pts = franke()
+    return pts, fit_points(pts, config(net_size=[6, 6], orders=[4, 4]))
+
+
+def test_swarm_never_worse_than_classical_start(franke_fit):
+    _, res = franke_fit
+    classical = res.info["swarm"]["classical_error"]
+    best = res.metrics["swarm_best_error"]
+    assert classical >= best > 0
+    assert res.curve[0, 1] <= classical + 1e-12 * classical  # particle 0 is the classical fit
+    assert res.curve[-1, 1] == pytest.approx(best, rel=1e-12)
+    assert np.all(np.diff(res.curve[:, 1]) <= 0)
+    np.testing.assert_array_equal(res.curve[:, 0], np.arange(1, 11))
+    # the noise is 0.01: the fit error cannot be far below it nor far above it
+    assert 0.005 < res.metrics["rmse"] < 0.03
+
+
+def dense_distances(s: NurbsSurface, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest-vertex distance on a 400 x 400 grid, the same refined on a 21 x 21
+    sub-grid spanning the two cells around that vertex): independent of psonurbs.polish."""
+    us, vs = s.parameter_grid(400, 400)
+    grid = s.evaluate_grid(us, vs).reshape(-1, 3)
+    coarse, k = cKDTree(grid).query(pts)
+    # a 400 x 400 vertex grid overestimates by the vertex spacing; refine each point on a
+    # 21 x 21 sub-grid spanning the two cells around its nearest vertex
+    h = np.linspace(-1.0, 1.0, 21) / 399.0
+    du, dv = np.meshgrid(h, h, indexing="ij")
+    u = np.clip(us[k // 400][:, None] + du.ravel(), 0, 1)
+    v = np.clip(vs[k % 400][:, None] + dv.ravel(), 0, 1)
+    local = s.evaluate(u.ravel(), v.ravel()).reshape(len(pts), -1, 3)
+    return coarse, np.linalg.norm(local - pts[:, None, :], axis=2).min(axis=1)
+
+
+def test_rmse_equals_dense_tessellation_distance(franke_fit):
+    pts, res = franke_fit
+    coarse, dist = dense_distances(res.surface, pts)
+    assert np.all(dist <= coarse + 1e-15)
+    assert res.metrics["rmse"] == pytest.approx(np.sqrt(np.mean(coarse ** 2)), rel=0.04)
+    independent = np.sqrt(np.mean(dist ** 2))
+    assert res.metrics["rmse"] == pytest.approx(independent, rel=0.02)
+    assert res.metrics["max_error"] == pytest.approx(dist.max(), rel=0.02)
+    diag = np.linalg.norm(np.ptp(pts, axis=0))
+    assert res.metrics["bbox_diagonal"] == pytest.approx(diag, rel=1e-12)
+    assert res.metrics["rmse_relative"] == pytest.approx(res.metrics["rmse"] / diag, rel=1e-12)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "bug: polish.closest_parameters keeps a Gauss-Newton step only if the FULL step brings the point "
+    "closer and never shortens it, so a point whose first full step overshoots stays at its start "
+    "vertex of the tessellation: here 12 of 300 points report a distance above one of a dense "
+    "sample of the surface (up to 2.8x). In fits this inflates metrics['rmse'] and misleads polish/"
+    "refine (franke fit at HEAD: point 131 reports 0.0160, the surface passes within 0.0031; half "
+    "the step gives 0.0117)"))
+def test_foot_points_are_never_farther_than_a_sampled_point():
+    layout = NetLayout((6, 6), (3, 3))
+    i, j = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6), indexing="ij")
+    rng = np.random.default_rng(1)
+    net = np.stack([i, j, rng.normal(0, 0.3, i.shape)], -1).reshape(-1, 3)
+    s = layout.surface(net, np.ones(36))
+    pts = s.evaluate(*rng.random((2, 300))) + rng.normal(0, 0.05, (300, 3))
+    _, dist = dense_distances(s, pts)
+    _, foot = closest_parameters(s, pts)
+    assert np.all(foot <= dist * (1 + 1e-6) + 1e-12), np.flatnonzero(foot > dist * (1 + 1e-6) + 1e-12)
+
+
+def test_same_config_same_fit_other_seed_other_curve():
+    pts = franke(n=150, seed=6, noise=0.005)
+    a = fit_points(pts, config(net_size=[5, 5], swarm={"seed": 3}))
+    b = fit_points(pts, config(net_size=[5, 5], swarm={"seed": 3}))
+    c = fit_points(pts, config(net_size=[5, 5], swarm={"seed": 4}))
+    for attr in ("control_points", "weights", "knots_u", "knots_v"):
+        np.testing.assert_array_equal(getattr(a.surface, attr), getattr(b.surface, attr))
+    np.testing.assert_array_equal(a.curve, b.curve)
+    assert a.metrics == b.metrics
+    assert not np.array_equal(a.curve, c.curve)
+
+
+def test_full_strategy_on_sixteen_points():
+    g = np.linspace(-1, 1, 4)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    pts = np.column_stack([x.ravel(), y.ravel(), 0.6 * np.exp(-2 * (x ** 2 + y ** 2)).ravel()])
+    res = fit_points(pts, config(strategy="full", net_size=[5, 5], orders=[3, 3],
+                                 swarm={"particles": 20, "iterations": 100}))
+    assert res.info["strategy"] == "full"
+    assert res.info["swarm"]["dimension"] == 3 * 25 + 25 + 2 + 2 + 2 * 16
+    best_col = [i for i, name in enumerate(res.curve_header) if "best" in name]
+    assert best_col == [1]
+    best = res.curve[:, 1]
+    assert len(best) == 100
+    assert np.all(np.diff(best) <= 0)
+    assert best[-1] <= 0.5 * best[0]
+    assert res.metrics["swarm_best_error"] == pytest.approx(best[-1], rel=1e-12)
+    assert any("under-determined" in n for n in res.notes)

@@ -1,0 +1,282 @@
+"""Net layouts of the closed topologies (seams, poles, free-point counts, smoothness
+operator), first parametrisations against known geometry, and choosing a topology."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from psonurbs.config import config_from_dict
+from psonurbs.net import NetLayout
+from psonurbs.parametrise import (parametrise_cylinder, parametrise_open, parametrise_sphere,
+                                  parametrise_torus)
+from psonurbs.topology import LAYOUTS, choose_topology, layout_for, unsupported
+
+CLOSED = {
+    "cylinder": NetLayout((6, 5), (3, 3), (True, False)),
+    "sphere": NetLayout((6, 5), (3, 3), (True, False), poles=True),
+    "torus": NetLayout((6, 5), (3, 3), (True, True)),
+}
+
+
+def random_surface(layout: NetLayout, seed: int, with_knots: bool = True):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(layout.n_free, 3))
+    weights = rng.uniform(0.4, 2.5, layout.n_free)
+    inner = [None, None]
+    if with_knots:
+        for k, c in enumerate(layout.inner_counts):
+            inner[k] = np.sort(rng.uniform(0.05, 0.95, c))
+    return layout.surface(points, weights, *inner)
+
+
+def homogeneous(surface, u, v, du, dv):
+    """(A, W) derivatives: A = sum w P N, W = sum w N; S = A / W is C^k where both are."""
+    t = surface.tensor(u, v, du, dv)
+    w = surface.weights.reshape(-1)
+    aw = (surface.control_points * surface.weights[..., None]).reshape(-1, 3)
+    return np.column_stack([t @ aw, t @ w])
+
+
+@pytest.mark.parametrize("name", ["cylinder", "sphere", "torus"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closed_surfaces_have_no_seam_along_u(name, seed):
+    s = random_surface(CLOSED[name], seed)
+    assert s.closed_u and s.domain_u == (0.0, 1.0)
+    v = np.linspace(0.0, 1.0, 17)
+    zero, one = np.zeros_like(v), np.ones_like(v)
+    a0, a1 = s.derivatives(zero, v), s.derivatives(one, v)
+    scale = np.abs(s.control_points).max()
+    for x, y in zip(a0, a1):  # S, S_u, S_v
+        np.testing.assert_allclose(x, y, atol=1e-9 * scale * 10)
+    for du in (0, 1, 2):  # cubic: C^2 across the seam
+        h0, h1 = homogeneous(s, zero, v, du, 0), homogeneous(s, one, v, du, 0)
+        np.testing.assert_allclose(h0, h1, atol=1e-9 * np.abs(h0).max())
+    # second derivative of S itself: S_uu = (A_uu - 2 W_u S_u - W_uu S) / W, equal on both sides
+    def s_uu(u):
+        (h, hu, huu) = (homogeneous(s, u, v, k, 0) for k in (0, 1, 2))
+        w, wu, wuu = h[:, 3:], hu[:, 3:], huu[:, 3:]
+        p = h[:, :3] / w
+        pu = (hu[:, :3] - wu * p) / w
+        return (huu[:, :3] - 2 * wu * pu - wuu * p) / w
+    a, b = s_uu(zero), s_uu(one)
+    np.testing.assert_allclose(a, b, atol=1e-9 * np.abs(a).max())
+    assert np.abs(a).max() > 1.0  # not trivially zero
+
+
+def test_torus_has_no_seam_along_v():
+    s = random_surface(CLOSED["torus"], 4)
+    assert s.closed_v
+    u = np.linspace(0.0, 1.0, 19)
+    zero, one = np.zeros_like(u), np.ones_like(u)
+    for x, y in zip(s.derivatives(u, zero), s.derivatives(u, one)):
+        np.testing.assert_allclose(x, y, atol=1e-9 * np.abs(x).max())
+    for dv in (0, 1, 2):
+        h0, h1 = homogeneous(s, u, zero, 0, dv), homogeneous(s, u, one, 0, dv)
+        np.testing.assert_allclose(h0, h1, atol=1e-9 * np.abs(h0).max())
+    # the corner (0, 0) = (1, 1) = (0, 1) = (1, 0)
+    corners = s.evaluate(np.array([0.0, 1.0, 0.0, 1.0]), np.array([0.0, 1.0, 1.0, 0.0]))
+    assert np.ptp(corners, axis=0).max() < 1e-12
+
+
+def test_cylinder_is_open_along_v():
+    s = random_surface(CLOSED["cylinder"], 5)
+    u = np.linspace(0, 1, 9)
+    gap = np.linalg.norm(s.evaluate(u, np.zeros_like(u)) - s.evaluate(u, np.ones_like(u)), axis=1)
+    assert gap.min() > 1e-3
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sphere_pole_rows_are_single_points(seed):
+    layout = CLOSED["sphere"]
+    s = random_surface(layout, seed)
+    u = np.linspace(0.0, 1.0, 101)
+    for v in (0.0, 1.0):
+        row = s.evaluate(u, np.full_like(u, v))
+        assert np.ptp(row, axis=0).max() < 1e-12
+    # and the two poles are the first and last free points
+    rng = np.random.default_rng(seed)
+    free = rng.normal(size=(layout.n_free, 3))
+    s2 = layout.surface(free, np.ones(layout.n_free))
+    np.testing.assert_allclose(s2.evaluate(np.array([0.3]), np.array([0.0]))[0], free[0], atol=1e-14)
+    np.testing.assert_allclose(s2.evaluate(np.array([0.3]), np.array([1.0]))[0], free[-1], atol=1e-14)
+
+
+@pytest.mark.parametrize("topology, size, degrees, n_free, full_shape", [
+    ("open", (5, 4), (2, 3), 20, (5, 4)),
+    ("cylinder", (6, 5), (3, 2), 30, (9, 5)),
+    ("sphere", (5, 5), (2, 2), 5 * 3 + 2, (7, 5)),
+    ("sphere", (8, 6), (3, 3), 8 * 4 + 2, (11, 6)),
+    ("torus", (6, 5), (3, 2), 30, (9, 7)),
+])
+def test_free_point_counts(topology, size, degrees, n_free, full_shape):
+    layout = layout_for(topology, size, degrees)
+    assert layout.n_free == n_free
+    assert layout.full_shape == full_shape
+    assert layout.free_index.shape == (full_shape[0] * full_shape[1],)
+    assert set(np.unique(layout.free_index)) == set(range(n_free))
+    closed, poles = LAYOUTS[topology]
+    idx = layout.free_index.reshape(full_shape)
+    if closed[0]:  # the last degree rows repeat the first
+        np.testing.assert_array_equal(idx[-degrees[0]:], idx[:degrees[0]])
+    if closed[1]:
+        np.testing.assert_array_equal(idx[:, -degrees[1]:], idx[:, :degrees[1]])
+    if poles:
+        assert np.all(idx[:, 0] == 0) and np.all(idx[:, -1] == n_free - 1)
+
+
+def test_smoothness_operator_annihilates_affine_net_on_open_layout():
+    layout = NetLayout((6, 5), (3, 2))
+    i, j = np.meshgrid(np.arange(6), np.arange(5), indexing="ij")
+    affine = np.stack([2 + i - 3 * j, 0.5 * i, 4 * j - 1], axis=-1).reshape(-1, 3).astype(float)
+    op = layout.smoothness_operator()
+    assert op.shape == (4 * 5 + 6 * 3 + 5 * 4, 30)
+    np.testing.assert_allclose(op @ affine, 0.0, atol=1e-12)
+    # a bilinear term i*j is caught by the mixed difference (weight sqrt 2)
+    bilinear = np.stack([i * j, 0 * i, 0 * j], axis=-1).reshape(-1, 3).astype(float)
+    energy = np.sum((op @ bilinear) ** 2)
+    assert energy == pytest.approx(2.0 * 5 * 4, rel=1e-12)
+    # closed: a constant net costs nothing, a periodic ramp does
+    closed = NetLayout((6, 5), (3, 2), (True, False))
+    np.testing.assert_allclose(closed.smoothness_operator() @ np.ones((30, 3)), 0.0, atol=1e-12)
+    assert np.abs(closed.smoothness_operator() @ affine).max() > 1
+
+
+# ---- parametrisations -------------------------------------------------------
+
+def angle_deg(a, b):
+    a, b = np.asarray(a) / np.linalg.norm(a), np.asarray(b) / np.linalg.norm(b)
+    return np.degrees(np.arccos(np.clip(abs(a @ b), -1, 1)))
+
+
+def height_field(n=600, seed=0, rotation=None):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    z = 0.6 * np.exp(-2.0 * np.sum(xy ** 2, axis=1))  # a peaked bump: PCA tilts, "up" does not
+    pts = np.column_stack([xy, z])
+    return pts if rotation is None else pts @ rotation.as_matrix().T
+
+
+def cylinder_cloud(n=600, seed=0, radius=1.7, height=3.0, arc=2 * np.pi, axis=None, centre=(1.0, -2.0, 0.5)):
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0, arc, n)
+    h = rng.uniform(0, height, n)
+    local = np.column_stack([radius * np.cos(a), radius * np.sin(a), h])
+    rot = Rotation.align_vectors([axis], [[0, 0, 1]])[0] if axis is not None else Rotation.identity()
+    return local @ rot.as_matrix().T + np.asarray(centre)
+
+
+def sphere_cloud(n=500, seed=0, centre=(0.3, -1.0, 2.0), radius=1.3):
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.asarray(centre) + radius * d
+
+
+def torus_cloud(n=600, seed=0, major=2.0, minor=0.6, rotation=None):
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(0, 2 * np.pi, (2, n))
+    pts = np.column_stack([(major + minor * np.cos(b)) * np.cos(a), (major + minor * np.cos(b)) * np.sin(a),
+                           minor * np.sin(b)])
+    return pts if rotation is None else pts @ rotation.as_matrix().T
+
+
+def test_parametrise_open_uv_fills_the_unit_square_along_the_field_axes():
+    rot = Rotation.from_euler("xyz", [25, -15, 40], degrees=True)
+    pts = height_field(seed=0, rotation=rot)
+    par = parametrise_open(pts)
+    np.testing.assert_allclose(par.uv.min(axis=0), 0.0, atol=1e-12)
+    np.testing.assert_allclose(par.uv.max(axis=0), 1.0, atol=1e-12)
+    assert par.info["footprint_fill"] == 1.0
+    # the footprint's rectangle sides are the square's sides: u, v ~ the field's x, y
+    xy = rot.inv().apply(pts)[:, :2]
+    corr = np.abs(np.corrcoef(np.column_stack([par.uv, xy]).T)[:2, 2:])
+    assert np.sort(corr.max(axis=1)).min() > 0.98
+    assert angle_deg(par.info["normal"], rot.apply([0, 0, 1])) < 30.0  # see the xfail below for 1 degree
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "bug: parametrise_open does not return the plane the surface faces most squarely (its docstring's "
+    "claim): best_plane admits every direction within 80% of the best facing and then picks the most "
+    "rectangular hull, a noisy criterion; a flat square gets a normal 13-28 deg off, a symmetric bump "
+    "7-15 deg off its up direction"))
+@pytest.mark.parametrize("amplitude, seed", [(0.0, 0), (0.0, 1), (0.6, 0), (0.6, 2)])
+def test_parametrise_open_recovers_the_height_field_plane(amplitude, seed):
+    rot = Rotation.random(random_state=seed)
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (600, 2))
+    z = amplitude * np.exp(-2.0 * np.sum(xy ** 2, axis=1))
+    pts = rot.apply(np.column_stack([xy, z]))
+    par = parametrise_open(pts)
+    assert angle_deg(par.info["normal"], rot.apply([0, 0, 1])) < 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_parametrise_cylinder_recovers_axis_and_radius(seed):
+    rng = np.random.default_rng(100 + seed)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    pts = cylinder_cloud(seed=seed, axis=axis, radius=1.7)
+    par = parametrise_cylinder(pts)
+    assert angle_deg(par.info["axis"], axis) < 1.0
+    assert par.info["radius"] == pytest.approx(1.7, rel=0.01)
+    assert par.uv.min() >= 0 and par.uv.max() <= 1
+    assert par.info["angular_gap"] < 0.05
+    # v is the height along the axis, up to orientation
+    h = (pts - pts.mean(axis=0)) @ axis
+    assert abs(np.corrcoef(par.uv[:, 1], h)[0, 1]) > 0.9999
+
+
+def test_parametrise_sphere_recovers_centre_and_radius():
+    pts = sphere_cloud(centre=(0.3, -1.0, 2.0), radius=1.3)
+    par = parametrise_sphere(pts)
+    np.testing.assert_allclose(par.info["centre"], [0.3, -1.0, 2.0], atol=1e-9)
+    assert par.info["radius"] == pytest.approx(1.3, rel=1e-9)
+    lo, hi = par.info["latitude_range"]
+    assert lo < 0.05 and hi > 0.95
+    # v is the polar angle around the axis, from 0 to 1
+    axis = np.asarray(par.info["axis"])
+    cos_polar = (pts - [0.3, -1.0, 2.0]) @ axis / 1.3
+    np.testing.assert_allclose(par.uv[:, 1], np.arccos(-cos_polar) / np.pi, atol=1e-9)
+
+
+def test_parametrise_torus_recovers_axis():
+    rot = Rotation.from_euler("zyx", [30, 50, -20], degrees=True)
+    pts = torus_cloud(rotation=rot)
+    par = parametrise_torus(pts)
+    assert angle_deg(par.info["axis"], rot.apply([0, 0, 1])) < 1.0
+    assert par.info["major_radius"] == pytest.approx(2.0, rel=0.05)
+    assert max(par.info["angular_gaps"]) < 0.1
+
+
+def test_unsupported_rejects_half_cylinder_accepts_full():
+    half = cylinder_cloud(arc=np.pi, seed=3)
+    full = cylinder_cloud(seed=3)
+    reason = unsupported(parametrise_cylinder(half), half, "cylinder")
+    assert reason is not None and "no data" in reason
+    assert parametrise_cylinder(half).info["angular_gap"] == pytest.approx(0.5, abs=0.02)
+    assert unsupported(parametrise_cylinder(full), full, "cylinder") is None
+
+
+def test_unsupported_sphere_needs_both_poles():
+    sph = sphere_cloud(seed=4)
+    assert unsupported(parametrise_sphere(sph), sph, "sphere") is None
+    cap = sph[(sph - [0.3, -1.0, 2.0])[:, 2] > -0.4]  # the lower part cut away: one pole missing
+    assert "poles" in unsupported(parametrise_sphere(cap), cap, "sphere")
+
+
+@pytest.mark.parametrize("expected, cloud", [
+    ("open", lambda: height_field(n=300, seed=5, rotation=Rotation.from_euler("x", 20, degrees=True))),
+    ("cylinder", lambda: cylinder_cloud(n=400, seed=6, axis=np.array([0.2, 1.0, 0.3]))),
+    ("sphere", lambda: sphere_cloud(n=400, seed=7)),
+    ("torus", lambda: torus_cloud(n=500, seed=8, rotation=Rotation.from_euler("y", 35, degrees=True))),
+])
+def test_choose_topology(expected, cloud):
+    pts = cloud()
+    pts = (pts - pts.mean(axis=0)) / np.linalg.norm(np.ptp(pts, axis=0))
+    config = config_from_dict({"net_size": [6, 5], "orders": [3, 3]})
+    topology, par, scores = choose_topology(pts, np.arange(len(pts)), config)
+    assert topology == expected, scores
+    assert set(scores) == set(LAYOUTS)
+    assert "classical_error_relative" in scores[expected]
+    assert par.uv.shape == (len(pts), 2)
