@@ -146,15 +146,14 @@ def test_gate_checks_both_bounds():
 # ---- the worker pool (real library) --------------------------------------------------
 
 def small_clouds(directory: Path) -> list[Path]:
-    """Four small clouds: the paper's 16 points, and subsampled demo clouds."""
+    """Three small clouds: the paper's 16 points, and subsampled demo clouds."""
     directory.mkdir(parents=True, exist_ok=True)
     paths = [directory / "seed_patch16.ply"]
     shutil.copy(SAMPLES / "seed_patch16.ply", paths[0])
-    for k, sample in enumerate(DEMO_SAMPLES):
-        for copy in range(2 - k):
-            path = directory / f"{sample.name}_{copy}.ply"
-            path.write_bytes(render_ply(sample.cloud(seed=copy)[:300], np.zeros((0, 3), np.int64)))
-            paths.append(path)
+    for sample in DEMO_SAMPLES:
+        path = directory / f"{sample.name}.ply"
+        path.write_bytes(render_ply(sample.cloud()[:80], np.zeros((0, 3), np.int64)))
+        paths.append(path)
     return paths
 
 
