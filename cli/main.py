@@ -83,7 +83,7 @@ def cli() -> None:
               help="Override topology.")
 @click.option("--strategy", type=click.Choice(STRATEGIES), default=None,
               help="Override strategy.")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
               help="Fit clouds in N worker processes (one BLAS thread each); the "
                    "files are identical to --jobs 1.")
 @click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
@@ -334,7 +334,7 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
 
 @cli.command("demo")
 @click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
               help="Worker processes.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @click.pass_context
@@ -368,8 +368,8 @@ def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> N
         click.echo(f"results and summary.csv in {results}; next:")
         cloud, config = samples[0]
         click.echo(f"  psonurbs fit {cloud} -c {config} -o {results} --format iges")
-        click.echo(f"  psonurbs score {results / 'bump.json'} {samples[0][0]}")
-        click.echo(f"  psonurbs plot {results / 'bump.json'}")
+        click.echo(f"  psonurbs score {results / 'bump.json'} {cloud}")
+        click.echo(f"  psonurbs plot {results / 'bump.json'} --cloud {cloud}")
     ctx.exit(code)
 
 

@@ -139,6 +139,10 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path) -> Pa
                        depthshade=False)
         _equal_axes(ax, bounds)
         ax.view_init(elev=elev, azim=azim)
+        if name == "top":
+            ax.set_zticks([])  # seen end-on: the labels would pile up
+        elif name == "front":
+            ax.set_yticks([])
         ax.set_title(name, fontsize=10)
         ax.tick_params(labelsize=7)
     what = "cloud (black), surface (blue), control net (red)" if points is not None \
