@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import os
 import sys
-import time
 import traceback
 from pathlib import Path
 
@@ -27,18 +26,12 @@ from psonurbs.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPT
                             Gate, Job, Row, exit_code, expand_inputs, jobs_from_inputs,
                             run_batch, write_summary)
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
-from psonurbs.errors import ConfigError, InputError, PsonurbsError
+from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.exports import FORMATS, check_formats
 
 
 def _error(message: str) -> None:
     click.echo(f"psonurbs: error: {message}", err=True)
-
-
-def _cloud_error(path: Path, error: Exception) -> None:
-    message = str(error)
-    prefix = f"{path}: "
-    _error(message if message.startswith(prefix) else prefix + message)
 
 
 def _internal_error(error: BaseException | str, trace: str = "") -> None:
@@ -151,6 +144,9 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     except KeyboardInterrupt:
         click.echo("psonurbs: interrupted", err=True)
         code = EXIT_INTERRUPTED
+    except Exception as e:  # a bug outside a cloud's fit
+        _internal_error(e)
+        code = EXIT_INTERNAL
     ctx.exit(code)
 
 
@@ -169,8 +165,13 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
         return EXIT_INPUT
     work = jobs_from_inputs(expand_inputs(clouds), config)
     rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet)
-    write_summary(out_dir, rows, gate)
-    return exit_code(rows)
+    code = exit_code(rows)
+    try:
+        write_summary(out_dir, rows, gate)
+    except OSError as e:
+        _error(f"{out_dir}: cannot write the run summary ({e.strerror or e})")
+        code = code if code == EXIT_INTERNAL else EXIT_INPUT
+    return code
 
 
 def _progress_enabled(quiet: bool) -> bool:
