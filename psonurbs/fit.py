@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from .hybrid import KnotWeightSearch
+from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .net import NetLayout
 from .nurbs import NurbsSurface
 from .organise import Cloud, organise, subsample
@@ -45,6 +46,40 @@ def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
 
 
+def edge_gap(surface: NurbsSurface, tree: cKDTree, samples: int = 64) -> float:
+    """Largest distance from the surface's open edges to the nearest data point.
+
+    The joint refinement may lower the error while stretching an edge into a region
+    without data; this measures that, so such a refinement can be refused.
+    """
+    t = np.linspace(0.0, 1.0, samples)
+    ends = np.array([0.0, 1.0])
+    edges = []
+    if not surface.closed_u:
+        edges.append(surface.evaluate_grid(ends, t).reshape(-1, 3))
+    if not surface.closed_v:
+        edges.append(surface.evaluate_grid(t, ends).reshape(-1, 3))
+    return float(tree.query(np.vstack(edges))[0].max()) if edges else 0.0
+
+
+def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray) -> float:
+    """The smoothing weight with the least leave-one-out error at these parameters.
+
+    After the polish the parameters are close to foot points, so the choice is sharp:
+    vanishing where the net represents the shape, larger where the data are noisy.
+    """
+    rows = layout.rows(uv, weights, inner_u, inner_v)
+    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
+    errors = []
+    for s in grid:
+        try:
+            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points))
+        except np.linalg.LinAlgError:
+            errors.append(np.inf)
+    return float(grid[int(np.argmin(errors))])
+
+
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots and weights (least-squares control points), then the polish."""
@@ -58,15 +93,20 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
                                          config.polish_iterations)
-    control, weights, uv = refine_jointly(layout, solver, cloud.points, uv, control, weights, inner_u, inner_v,
-                                          np.log(config.weight_bounds))
+    smoothing = loo_smoothing(layout, solver, cloud.points[sample], uv[sample], weights, inner_u, inner_v)
+    solver = solver.with_smoothing(smoothing)
+    control, weights, uv, refine_steps = refine_jointly(layout, solver, cloud.points, uv, control, weights,
+                                                        inner_u, inner_v, np.log(config.weight_bounds))
     refined = layout.surface(control, weights, inner_u, inner_v)
-    if rms(closest_parameters(refined, cloud.points, uv)[1]) <= rms(closest_parameters(surface, cloud.points)[1]):
+    tree = cKDTree(cloud.points)
+    kept = (rms(closest_parameters(refined, cloud.points, uv)[1]) <= rms(closest_parameters(surface, cloud.points)[1])
+            and edge_gap(refined, tree) <= 1.5 * edge_gap(surface, tree) + 1e-9)
+    if kept:
         surface = refined
-    info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(smoothing),
+    info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(sample)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical()))},
-            "polish_iterations": int(steps)}
+            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept)}
     return surface, swarm, info
 
 

@@ -114,14 +114,16 @@ def best_plane(points: np.ndarray, normals: np.ndarray, candidates: np.ndarray, 
     """The best projection normal among ``candidates``.
 
     Admissible: the surface faces it at least 80% as squarely as the best candidate
-    (:func:`facing`; no folds, no flank seen edge-on). Among those, the most
-    rectangular footprint outline wins (the first on ties): a height field over a
-    rectangle seen square on projects onto exactly its rectangle.
+    (:func:`facing`; no folds, no flank seen edge-on). Among those whose footprint
+    outline is as rectangular as the best (to 0.5%: a height field over a rectangle
+    seen square on projects onto exactly its rectangle, a tilted view does not), the
+    one the surface faces most squarely.
     """
     face = np.array([facing(normals, d) for d in candidates])
     admissible = np.flatnonzero(face >= 0.8 * face.max())
-    rect = [footprint_quality(points, candidates[k], cells)[1] for k in admissible]
-    return candidates[admissible[int(np.argmax(rect))]]
+    rect = np.array([footprint_quality(points, candidates[k], cells)[1] for k in admissible])
+    square = admissible[rect >= rect.max() - 0.005]
+    return candidates[square[int(np.argmax(face[square]))]]
 
 
 def directions_around(normal: np.ndarray, radius: float, steps: int = 4) -> np.ndarray:

@@ -54,12 +54,19 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
         det = np.where(np.abs(det) > 1e-300, det, 1e-300)
         du = -((c + damp) * gu - b * gv) / det
         dv = -((a + damp) * gv - b * gu) / det
-        trial = keep_in_domain(uv + np.stack([du, dv], axis=1), closed)
-        trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points) ** 2, axis=1)
-        better = trial_d2 < dist2
-        if not better.any():
+        step = np.stack([du, dv], axis=1)
+        moved = np.zeros(len(points), bool)
+        for scale in (1.0, 0.5, 0.25):  # a step that overshoots is retried shorter
+            todo = np.flatnonzero(~moved)
+            trial = keep_in_domain(uv[todo] + scale * step[todo], closed)
+            trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[todo]) ** 2, axis=1)
+            better = trial_d2 < dist2[todo]
+            uv[todo[better]], dist2[todo[better]] = trial[better], trial_d2[better]
+            moved[todo[better]] = True
+            if moved.all():
+                break
+        if not moved.any():
             break
-        uv[better], dist2[better] = trial[better], trial_d2[better]
     return uv, np.sqrt(dist2)
 
 

@@ -1,101 +1,155 @@
 """Joint refinement: Levenberg-Marquardt over control points, weights and parameters.
 
-Alternating parameter correction and least squares converges slowly, and it cannot
-move the weights at all. Here all three are unknowns of one non-linear least-squares
-problem (knots stay where the swarm put them):
+Alternating parameter correction with linear least squares converges slowly and
+cannot move the weights. Here all of them are the unknowns of one non-linear least
+squares problem (the knots stay where the swarm put them):
 
     min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2
 
-solved by :func:`scipy.optimize.least_squares` (trust region reflective, sparse
-Jacobian, LSMR). With R the rational basis at the points, the Jacobian blocks are
+With R the rational basis at the points, the Jacobian of point i's residual is
 
-    dS_i / dP_c       = R_ic                       (per coordinate)
-    dS_i / d log w_c  = R_ic (P_c - S_i)
-    dS_i / d(u_i, v_i) = (S_u, S_v)(u_i, v_i)      (each point moves only itself)
+    dS_i / dP_c        = R_ic                (per coordinate)
+    dS_i / d log w_c   = R_ic (P_c - S_i)
+    dS_i / d(u_i, v_i) = [S_u  S_v]          (each point moves only its own parameters)
 
-Log-weights keep the weights positive and are bounded as in the swarm; parameters of
-an open direction stay in [0, 1], those of a closed one wrap.
+so the damped normal equations have a small dense block G for the net (4 unknowns per
+control point), a 2 x 2 block C_i per point and a coupling B_i between them. The
+points are eliminated exactly (Schur complement, as in bundle adjustment):
+
+    (G - sum_i B_i C_i^-1 B_i^T) d_net = -g + sum_i B_i C_i^-1 c_i
+    d_i = -C_i^-1 (c_i + B_i^T d_net)
+
+Every point's block touches only its knot-span cell's control points, so the sums are
+cell-block Grams (:class:`psonurbs.solve.CellBlocks`) and the net system is solved by
+Cholesky. Levenberg damping ``mu * mean(diag) * I`` also tames the exact null
+directions of a rational patch (the weights' common scale, their Moebius
+reparametrisation). Log-weights stay inside their bounds; parameters of an open
+direction inside [0, 1], those of a closed one wrap.
 """
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.optimize import least_squares
+import scipy.linalg as la
 
 from .net import NetLayout
 from .polish import keep_in_domain
-from .solve import RegularisedLeastSquares
+from .solve import RegularisedLeastSquares, Rows
 
 
 class JointProblem:
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
                  inner_u: np.ndarray, inner_v: np.ndarray):
-        self.layout, self.points = layout, points
+        self.layout, self.solver, self.points = layout, solver, points
         self.inner = (inner_u, inner_v)
-        self.n, self.m = layout.n_free, len(points)
-        self.smoothness = sp.csr_array(layout.smoothness_operator())
-        self.solver = solver
+        self.n = layout.n_free
+        self.control_penalty = np.kron(solver.penalty, np.eye(3))
 
-    def split(self, x: np.ndarray):
-        n = self.n
-        control = x[:3 * n].reshape(n, 3)
-        weights = np.exp(x[3 * n:4 * n])
-        uv = keep_in_domain(x[4 * n:].reshape(-1, 2), self.layout.closed)
-        return control, weights, uv
-
-    def pack(self, control, weights, uv) -> np.ndarray:
-        return np.concatenate([control.ravel(), np.log(weights), uv.ravel()])
-
-    def bounds(self, log_bounds) -> tuple[np.ndarray, np.ndarray]:
-        n, m = self.n, self.m
-        lo_uv = np.tile([-np.inf if c else 0.0 for c in self.layout.closed], m)
-        hi_uv = np.tile([np.inf if c else 1.0 for c in self.layout.closed], m)
-        return (np.concatenate([np.full(3 * n, -np.inf), np.full(n, log_bounds[0]), lo_uv]),
-                np.concatenate([np.full(3 * n, np.inf), np.full(n, log_bounds[1]), hi_uv]))
-
-    def penalty_scale(self, rows) -> float:
-        gram_trace = float(np.sum(rows.values ** 2))
-        return np.sqrt(self.solver.smoothing * gram_trace / self.solver.penalty_trace) \
-            if self.solver.penalty_trace > 0 else 0.0
-
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        control, weights, uv = self.split(x)
+    def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
+        """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
-        data = (rows @ control - self.points).ravel()
-        return np.concatenate([data, self.penalty_scale(rows) * (self.smoothness @ control).ravel()])
+        residual = rows @ control - self.points
+        s = self.solver
+        lam = s.smoothing * float(np.sum(rows.values ** 2)) / s.penalty_trace if s.penalty_trace > 0 else 0.0
+        p = control.ravel()
+        objective = float(np.sum(residual ** 2) + lam * p @ (self.control_penalty @ p))
+        return {"rows": rows, "residual": residual, "lam": lam, "objective": objective}
 
-    def jacobian(self, x: np.ndarray) -> sp.csr_array:
-        control, weights, uv = self.split(x)
-        n, m = self.n, self.m
-        rows = self.layout.rows(uv, weights, *self.inner)
+    def pinned(self, uv: np.ndarray, d_uv: np.ndarray) -> np.ndarray:
+        """(N, 2) mask of open-direction parameters that the step would push out of [0, 1]:
+        they stay on the bound (the active set of the bound constraints)."""
+        target = uv + d_uv
+        return ((target < 0.0) | (target > 1.0)) & ~np.array(self.layout.closed)[None, :]
+
+    def linearise(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray, ev: dict) -> dict:
+        """The parts of the normal equations that do not depend on the damping."""
+        n, rows, res = self.n, ev["rows"], ev["residual"]
         surface = self.layout.surface(control, weights, *self.inner)
-        s, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
-        k = rows.values.shape[1]
-        point = np.repeat(np.arange(m), k)
-        col, val = rows.columns.ravel(), rows.values.ravel()
-        r_idx, c_idx, v_idx = [], [], []
-        for d in range(3):
-            r_idx += [3 * point + d, 3 * point + d]
-            c_idx += [3 * col + d, 3 * n + col]
-            v_idx += [val, val * (control[col, d] - s[point, d])]
-            r_idx += [3 * np.arange(m) + d, 3 * np.arange(m) + d]
-            c_idx += [4 * n + 2 * np.arange(m), 4 * n + 2 * np.arange(m) + 1]
-            v_idx += [su[:, d], sv[:, d]]
-        data_jac = sp.csr_array((np.concatenate(v_idx), (np.concatenate(r_idx), np.concatenate(c_idx))),
-                                shape=(3 * m, 4 * n + 2 * m))
-        reg = sp.kron(self.smoothness, sp.identity(3), format="csr") * self.penalty_scale(rows)
-        reg = sp.hstack([reg, sp.csr_array((reg.shape[0], n + 2 * m))])
-        return sp.csr_array(sp.vstack([data_jac, reg]))
+        _, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
+        c, v = rows.columns, rows.values
+        s = control[c] - (rows @ control)[:, None, :]  # P_c - S_i, (N, m, 3)
+        columns = np.concatenate([3 * c, 3 * c + 1, 3 * c + 2, 3 * n + c], axis=1)
+        zeros = np.zeros_like(v)
+        # row k (coordinate k of every point's residual) of the Jacobian in the net unknowns
+        jn = np.stack([np.concatenate([v if j == k else zeros for j in range(3)] + [v * s[:, :, k]], axis=1)
+                       for k in range(3)], axis=1)  # (N, 3, 4m)
+        stacked = Rows(jn.reshape(-1, jn.shape[2]), np.repeat(columns, 3, axis=0), 4 * n, np.repeat(rows.cells, 3))
+        penalty = np.zeros((4 * n, 4 * n))
+        penalty[:3 * n, :3 * n] = ev["lam"] * self.control_penalty
+        gram = stacked.gram() + penalty
+        g = stacked.project(res.reshape(-1, 1))[:, 0] + penalty @ np.concatenate([control.ravel(), np.zeros(n)])
+        return {"v": v, "s": s, "jl": np.stack([su, sv], axis=2), "columns": columns, "cells": rows.cells,
+                "gram": gram, "g": g, "residual": res}
+
+    def step(self, lin: dict, damping: float, frozen: np.ndarray | None = None):
+        """The damped Gauss-Newton step (d_control, d_log_weights, d_uv); parameters
+        marked ``frozen`` (N, 2) stay where they are. The 2 x 2 blocks are inverted
+        in closed form."""
+        n, v, s, columns, cells, res = self.n, lin["v"], lin["s"], lin["columns"], lin["cells"], lin["residual"]
+        jl = lin["jl"] if frozen is None else lin["jl"] * ~frozen[:, None, :]  # (N, 3, 2)
+        a = np.sum(jl[:, :, 0] ** 2, axis=1)
+        c = np.sum(jl[:, :, 1] ** 2, axis=1)
+        off = np.sum(jl[:, :, 0] * jl[:, :, 1], axis=1)
+        shift = damping * np.maximum((a + c) / 2.0, 1e-300)
+        a, c = a + shift, c + shift
+        if frozen is not None:
+            a, c = a + frozen[:, 0], c + frozen[:, 1]
+        # B_i = J_net,i^T J_l,i: control blocks v_c * J_l[k], weight block v_c * (P_c - S_i) . J_l
+        b = np.concatenate([v[:, :, None] * jl[:, k, None, :] for k in range(3)]
+                           + [v[:, :, None] * np.einsum("nmk,nkj->nmj", s, jl)], axis=1)  # (N, 4m, 2)
+        l11 = np.sqrt(a)
+        l21 = off / l11
+        l22 = np.sqrt(np.maximum(c - l21 ** 2, 1e-300))
+        y0 = b[:, :, 0] / l11[:, None]  # B_i L_i^-T, C_i = L_i L_i^T
+        y1 = (b[:, :, 1] - b[:, :, 0] * (l21 / l11)[:, None]) / l22[:, None]
+        schur = lin["gram"] - Rows(np.concatenate([y0, y1]), np.concatenate([columns, columns]),
+                                   4 * n, np.concatenate([cells, cells])).gram()
+        schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
+        det = a * c - off ** 2
+
+        def c_inverse(x: np.ndarray) -> np.ndarray:  # C_i^-1 x_i for (N, 2) x
+            return np.stack([c * x[:, 0] - off * x[:, 1], a * x[:, 1] - off * x[:, 0]], axis=1) / det[:, None]
+
+        c_vec = np.einsum("nki,nk->ni", jl, res)  # J_l^T r
+        w_vec = c_inverse(c_vec)
+        rhs = -lin["g"] + Rows(b[:, :, 0] * w_vec[:, 0:1] + b[:, :, 1] * w_vec[:, 1:2], columns, 4 * n,
+                               cells).project(np.ones((len(res), 1)))[:, 0]
+        d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
+        picked = d_net[columns]
+        bt_d = np.stack([np.sum(b[:, :, 0] * picked, axis=1), np.sum(b[:, :, 1] * picked, axis=1)], axis=1)
+        d_uv = -c_inverse(c_vec + bt_d)
+        return d_net[:3 * n].reshape(n, 3), d_net[3 * n:], d_uv
 
 
 def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
                    control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                   log_bounds, max_evaluations: int = 40):
-    """Jointly optimised (control, weights, uv), started from the given ones."""
+                   log_bounds, iterations: int = 12, tolerance: float = 1e-6):
+    """Refined (control, weights, uv) and the rounds taken, started from the given ones."""
     problem = JointProblem(layout, solver, points, inner_u, inner_v)
-    lower, upper = problem.bounds(log_bounds)
-    x0 = np.clip(problem.pack(control, np.clip(weights, *np.exp(log_bounds)), uv), lower, upper)
-    result = least_squares(problem.residuals, x0, jac=problem.jacobian, bounds=(lower, upper),
-                           method="trf", tr_solver="lsmr", x_scale="jac", max_nfev=max_evaluations,
-                           ftol=1e-12, xtol=1e-12, gtol=1e-12)
-    return problem.split(result.x)
+    log_w = np.clip(np.log(weights), *log_bounds)
+    uv = keep_in_domain(uv, layout.closed)
+    ev = problem.evaluate(control, np.exp(log_w), uv)
+    damping, taken = 1e-3, 0
+    for taken in range(1, iterations + 1):
+        gain = None
+        lin = problem.linearise(control, np.exp(log_w), uv, ev)
+        while damping < 1e6:
+            try:
+                d_control, d_log_w, d_uv = problem.step(lin, damping)
+                pinned = problem.pinned(uv, d_uv)
+                if pinned.any():
+                    d_control, d_log_w, d_uv = problem.step(lin, damping, pinned)
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            trial = (control + d_control, np.clip(log_w + d_log_w, *log_bounds),
+                     keep_in_domain(uv + d_uv, layout.closed))
+            trial_ev = problem.evaluate(trial[0], np.exp(trial[1]), trial[2])
+            if trial_ev["objective"] < ev["objective"]:
+                gain = 1.0 - trial_ev["objective"] / ev["objective"]
+                (control, log_w, uv), ev = trial, trial_ev
+                damping = max(damping / 4.0, 1e-9)
+                break
+            damping *= 8.0
+        if gain is None or gain < tolerance:
+            break
+    return control, np.exp(log_w), uv, taken

@@ -192,14 +192,9 @@ def test_parametrise_open_uv_fills_the_unit_square_along_the_field_axes():
     xy = rot.inv().apply(pts)[:, :2]
     corr = np.abs(np.corrcoef(np.column_stack([par.uv, xy]).T)[:2, 2:])
     assert np.sort(corr.max(axis=1)).min() > 0.98
-    assert angle_deg(par.info["normal"], rot.apply([0, 0, 1])) < 30.0  # see the xfail below for 1 degree
+    assert angle_deg(par.info["normal"], rot.apply([0, 0, 1])) < 30.0  # 1 degree: see the test below
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "bug: parametrise_open does not return the plane the surface faces most squarely (its docstring's "
-    "claim): best_plane admits every direction within 80% of the best facing and then picks the most "
-    "rectangular hull, a noisy criterion; a flat square gets a normal 13-28 deg off, a symmetric bump "
-    "7-15 deg off its up direction"))
 @pytest.mark.parametrize("amplitude, seed", [(0.0, 0), (0.0, 1), (0.6, 0), (0.6, 2)])
 def test_parametrise_open_recovers_the_height_field_plane(amplitude, seed):
     rot = Rotation.random(random_state=seed)
