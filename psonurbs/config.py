@@ -153,6 +153,8 @@ class FitConfig:
     min_knot_gap: minimum gap between knots, as a fraction of the uniform spacing.
     cross_validation: judge the swarm's particles by their leave-one-out error (true)
         or by the plain fit error on the points they were fitted to (false).
+    refine: after the polish, refine control points, weights and parameters jointly
+        (Levenberg-Marquardt), then polish again.
     remove_outliers: drop statistical outliers before fitting.
     """
 
@@ -168,6 +170,7 @@ class FitConfig:
     weight_bounds: tuple[float, float] = (0.2, 5.0)
     min_knot_gap: float = 0.2
     cross_validation: bool = True
+    refine: bool = True
     remove_outliers: bool = False
 
     def __post_init__(self) -> None:
@@ -216,7 +219,7 @@ class FitConfig:
         put("weight_bounds", (lo, hi))
         put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
                                    what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
-        for name in ("cross_validation", "remove_outliers"):
+        for name in ("cross_validation", "refine", "remove_outliers"):
             if not isinstance(getattr(self, name), bool):
                 raise _fail(name, "true or false", getattr(self, name))
 

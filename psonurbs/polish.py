@@ -115,6 +115,7 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
+    uv = align_to_domain(uv, layout.closed)
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
         surface = layout.surface(control, weights, inner_u, inner_v)
@@ -123,5 +124,5 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
         if new_rmse >= rmse * (1.0 - 1e-4):
             break
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        uv = align_to_domain(new_uv, layout.closed)
+        uv = new_uv
     return best_control, best, best_uv, it

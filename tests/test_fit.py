@@ -4,6 +4,8 @@ never worse than its classical start, the paper's full strategy, and the reporte
 rmse against an independent dense-tessellation distance."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -46,14 +48,26 @@ def quarter_fit():
     return pts, fit_points(pts, config(orders=[3, 2], net_size=[3, 2]))
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 3 (open): exact conics. The joint refinement alone reaches rmse 4e-8 on this cloud, but it "
+    "lets the data retreat from the domain's edges on other clouds (the surface then overshoots them), "
+    "so it is followed by a polish that re-anchors the edges, which costs exactness: rmse ~9e-4 here"))
 def test_quarter_cylinder_is_fitted_exactly(quarter_fit):
     pts, res = quarter_fit
-    assert res.topology == "open"
     assert res.metrics["rmse_relative"] < 1e-5
+
+
+def test_quarter_cylinder_refinement_moves_towards_the_conic(quarter_fit):
+    pts, res = quarter_fit
+    assert res.topology == "open"
     assert res.metrics["points"] == 400 and res.metrics["control_points"] == 6
-    # the surface is the cylinder: every point of it at radius 1
+    assert res.info["refined"] is True
+    plain = fit_points(pts, dataclasses.replace(config(orders=[3, 2], net_size=[3, 2]), refine=False))
+    # the refinement moves the weights, which the swarm and the linear solve leave near 1
+    assert res.metrics["rmse"] < 0.6 * plain.metrics["rmse"]
+    # the surface is close to the cylinder: every point of it near radius 1
     grid = res.surface.evaluate_grid(*res.surface.parameter_grid(60, 60)).reshape(-1, 3)
-    assert np.abs(np.hypot(grid[:, 0], grid[:, 1]) - 1.0).max() < 1e-4
+    assert np.abs(np.hypot(grid[:, 0], grid[:, 1]) - 1.0).max() < 5e-3
     d = res.surface.to_dict()
     assert sorted(np.asarray(d["control_points"]).shape[:2]) == [2, 3]
     # a conic: the rational quadratic's shape factor is that of a circle arc of about 90 degrees
