@@ -240,10 +240,9 @@ def fit_job(job: Job, formats: Sequence[str] = (),
 
             exact = NurbsSurface.from_dict(surface)
             obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices))
-        cp = surface.get("control_points", [])
         metrics = result.metrics
         row.topology = result.topology
-        row.net = f"{len(cp)}x{len(cp[0]) if len(cp) else 0}"
+        row.net = "x".join(str(n) for n in job.config.net_size)  # distinct control points
         row.rmse = _number(metrics.get("rmse"))
         row.max_error = _number(metrics.get("max_error"))
         row.rmse_relative = _number(metrics.get("rmse_relative"))

@@ -88,7 +88,7 @@ def test_summary_rows_for_good_bad_and_gated_clouds(tmp_path, fake_fit):
                                                        (str(good), "gate-exceeded")]
     assert rows[0]["message"].startswith(f"{bad}: malformed point data at line 2")
     assert rows[0]["points"] == rows[0]["rmse"] == ""
-    assert rows[1]["points"] == "16" and rows[1]["net"] == "2x2" and rows[1]["topology"] == "open"
+    assert rows[1]["points"] == "16" and rows[1]["net"] == "5x5" and rows[1]["topology"] == "open"  # net_size
     assert float(rows[1]["rmse"]) == 1.234e-4 and float(rows[1]["max_error"]) == 4.567e-4
     assert rows[1]["message"] == "rmse 1.234e-04 > --max-rmse 0.0001; 16 points for 4 control points"
     assert float(rows[1]["seconds"]) >= 0

@@ -275,7 +275,7 @@ def test_good_cloud_outputs_and_summary(tmp_path, fake_fit):
     assert result.stderr == ""  # stderr is not a TTY: no progress bar
     line = result.stdout.strip()
     assert "\n" not in line
-    assert line.startswith("good.ply: 16 points, net 2x2 (open), rmse 1.23e-04, max 4.57e-04, ")
+    assert line.startswith("good.ply: 16 points, net 5x5 (open), rmse 1.23e-04, max 4.57e-04, ")  # net_size
     assert line.endswith(" s; 16 points for 4 control points")
 
     assert stem_files(out, "good") == ["good.json", "good.obj", "good.ply", "good_error.csv"]

@@ -90,7 +90,7 @@ def test_txt_is_exact(tmp_path, pts):
 def test_sample_clouds_read():
     shapes = {p.stem: read_cloud(p).shape for p in (REPO / "data_samples").glob("*.ply")}
     assert shapes == {"seed_patch16": (16, 3), "franke_noisy": (5000, 3),
-                      "quarter_cylinder": (2000, 3)}
+                      "quarter_cylinder": (2000, 3), "seed_sphere169": (169, 3), "torus": (8000, 3)}
 
 
 # ---- refusing bad clouds ---------------------------------------------------
