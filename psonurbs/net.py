@@ -74,16 +74,34 @@ class NetLayout:
 
         Second differences along u and v and the mixed difference (weight sqrt 2),
         periodic in a closed direction. A net that is affine in (i, j) costs nothing.
+        At a sphere's poles the second difference also runs across the pole, from a
+        meridian to the opposite one (``P[i, 1] - 2 pole + P[i + nu/2, 1]``): without it
+        nothing keeps the ring around a pole flat and the surface ends in a cone.
         """
         nu, nv = self.size
         d2u, d2v = (difference(n, 2, c) for n, c in zip(self.size, self.closed))
         d1u, d1v = (difference(n, 1, c) for n, c in zip(self.size, self.closed))
         iu, iv = sp.identity(nu), sp.identity(nv)
-        op = sp.vstack([sp.kron(d2u, iv), sp.kron(iu, d2v), np.sqrt(2.0) * sp.kron(d1u, d1v)])
+        parts = [sp.kron(d2u, iv), sp.kron(iu, d2v), np.sqrt(2.0) * sp.kron(d1u, d1v)]
+        if self.poles:
+            parts.append(self._across_poles())
+        op = sp.vstack(parts)
         distinct_to_free = self.free_index[self._first_full_of_distinct()]
         fold = sp.csr_array((np.ones(nu * nv), (np.arange(nu * nv), distinct_to_free)),
                             shape=(nu * nv, self.n_free))
         return sp.csr_array(op @ fold)
+
+    def _across_poles(self) -> sp.csr_array:
+        """Second differences through each pole between opposite meridians (distinct net)."""
+        nu, nv = self.size
+        i = np.arange(nu)
+        opposite = (i + nu // 2) % nu
+        rows, cols, vals = [], [], []
+        for k, (pole, ring) in enumerate(((0, 1), (nv - 1, nv - 2))):
+            for c, w in ((i * nv + ring, 1.0), (np.full(nu, pole), -2.0), (opposite * nv + ring, 1.0)):
+                rows.append(k * nu + i), cols.append(c), vals.append(np.full(nu, w))
+        rows, cols, vals = (np.concatenate(x) for x in (rows, cols, vals))
+        return sp.csr_array((vals, (rows, cols)), shape=(2 * nu, nu * nv))
 
     def _first_full_of_distinct(self) -> np.ndarray:
         fu, fv = self.full_shape

@@ -275,3 +275,21 @@ def test_choose_topology(expected, cloud):
     assert set(scores) == set(LAYOUTS)
     assert "classical_error_relative" in scores[expected]
     assert par.uv.shape == (len(pts), 2)
+
+
+def test_sphere_smoothness_penalises_a_pointed_pole():
+    """Across a pole the operator compares opposite meridians: a flat ring around the
+    pole costs nothing there, a pole raised out of the ring's plane (a cone) does."""
+    layout = NetLayout((6, 5), (3, 3), (True, False), poles=True)
+    across = layout._across_poles()
+    nu, nv = layout.size
+    t = 2 * np.pi * np.arange(nu) / nu
+    net = np.zeros((nu, nv, 3))
+    for j in range(nv):
+        net[:, j] = np.column_stack([np.cos(t) * j, np.sin(t) * j, np.zeros(nu)])
+    flat = net.reshape(-1, 3)
+    np.testing.assert_allclose(across @ flat, 0.0, atol=1e-12)
+    cone = net.copy()
+    cone[:, 0, 2] = 1.0  # the pole (row 0) lifted by 1 above its ring
+    values = across @ cone.reshape(-1, 3)
+    np.testing.assert_allclose(values[:nu, 2], -2.0)  # P[i,1] - 2 pole + P[i+3,1] in z
