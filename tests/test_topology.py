@@ -285,8 +285,8 @@ def test_sphere_smoothness_penalises_a_pointed_pole():
     nu, nv = layout.size
     t = 2 * np.pi * np.arange(nu) / nu
     net = np.zeros((nu, nv, 3))
-    for j in range(nv):
-        net[:, j] = np.column_stack([np.cos(t) * j, np.sin(t) * j, np.zeros(nu)])
+    for j, radius in enumerate([0.0, 1.0, 2.0, 1.0, 0.0]):  # both pole rows at the centre
+        net[:, j] = np.column_stack([np.cos(t) * radius, np.sin(t) * radius, np.zeros(nu)])
     flat = net.reshape(-1, 3)
     np.testing.assert_allclose(across @ flat, 0.0, atol=1e-12)
     cone = net.copy()
