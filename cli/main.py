@@ -54,6 +54,21 @@ def _finite(ctx, param, value):
     return value
 
 
+def _run(ctx: click.Context, action):
+    """``action()``, with its failures turned into the documented exit codes."""
+    try:
+        return action()
+    except PsonurbsError as e:
+        _error(str(e))
+        ctx.exit(EXIT_INPUT)
+    except KeyboardInterrupt:
+        click.echo("psonurbs: interrupted", err=True)
+        ctx.exit(EXIT_INTERRUPTED)
+    except Exception as e:
+        _internal_error(e)
+        ctx.exit(EXIT_INTERNAL)
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(psonurbs.__version__, "--version", prog_name="psonurbs")
 def cli() -> None:
@@ -258,19 +273,7 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
     from psonurbs.io import read_cloud
     from psonurbs.scoring import load_surface, score
 
-    try:
-        surface, _ = load_surface(surface_path)
-        points = read_cloud(cloud)
-        figures = score(surface, points)
-    except PsonurbsError as e:
-        _error(str(e))
-        ctx.exit(EXIT_INPUT)
-    except KeyboardInterrupt:
-        click.echo("psonurbs: interrupted", err=True)
-        ctx.exit(EXIT_INTERRUPTED)
-    except Exception as e:
-        _internal_error(e)
-        ctx.exit(EXIT_INTERNAL)
+    figures = _run(ctx, lambda: score(load_surface(surface_path)[0], read_cloud(cloud)))
     reason = Gate(max_rmse, max_rmse_rel).check(figures)
     if as_json:
         import json
@@ -315,17 +318,7 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
     """
     from psonurbs.plots import plot_result
 
-    try:
-        written, notes = plot_result(result, out_dir, cloud)
-    except PsonurbsError as e:
-        _error(str(e))
-        ctx.exit(EXIT_INPUT)
-    except KeyboardInterrupt:
-        click.echo("psonurbs: interrupted", err=True)
-        ctx.exit(EXIT_INTERRUPTED)
-    except Exception as e:
-        _internal_error(e)
-        ctx.exit(EXIT_INTERNAL)
+    written, notes = _run(ctx, lambda: plot_result(result, out_dir, cloud))
     for note in notes:
         click.echo(f"psonurbs: note: {note}", err=True)
     for path in written:
