@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
@@ -45,22 +44,6 @@ class FitResult:
 
 def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
-
-
-def edge_gap(surface: NurbsSurface, tree: cKDTree, samples: int = 64) -> float:
-    """Largest distance from the surface's open edges to the nearest data point.
-
-    The joint refinement may lower the error while stretching an edge into a region
-    without data; this measures that, so such a refinement can be refused.
-    """
-    t = np.linspace(0.0, 1.0, samples)
-    ends = np.array([0.0, 1.0])
-    edges = []
-    if not surface.closed_u:
-        edges.append(surface.evaluate_grid(ends, t).reshape(-1, 3))
-    if not surface.closed_v:
-        edges.append(surface.evaluate_grid(t, ends).reshape(-1, 3))
-    return float(tree.query(np.vstack(edges))[0].max()) if edges else 0.0
 
 
 def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,

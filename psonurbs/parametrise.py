@@ -62,11 +62,6 @@ def cell_counts(uv: np.ndarray, cells: int) -> np.ndarray:
     return np.bincount(idx[:, 0] * cells + idx[:, 1], minlength=cells * cells)
 
 
-def occupancy(uv: np.ndarray, cells: int) -> float:
-    """Share of the cells of the grid that hold at least one point."""
-    return float(np.mean(cell_counts(uv, cells) > 0))
-
-
 def project_on_plane(points: np.ndarray, normal: np.ndarray) -> Parametrisation:
     q = points @ plane_basis(normal).T
     q = q @ min_area_rectangle(q).T
