@@ -1,11 +1,15 @@
-"""The fitter: organise -> parametrise -> swarm -> polish, for one cloud.
+"""The fitter: organise -> parametrise -> swarm -> polish (-> refine), for one cloud.
 
 ``strategy: hybrid`` (default): the swarm searches what is non-linear (the inner knots
-of both directions and the weights); inside its fitness the control points come from
-the regularised least-squares solve, and a particle is judged by its leave-one-out
-RMSE (each point against the solve that did not see it), so the swarm cannot win by
-tuning knots to noise. ``strategy: full`` is the paper's own search space (Eq. 10,
-:mod:`psonurbs.paper`).
+of both directions, the weights and the smoothing weight); inside its fitness the
+control points come from the regularised least-squares solve, and a particle is
+judged by its leave-one-out RMSE (each point against the solve that did not see it),
+so the swarm cannot win by tuning knots to noise. The best particle is polished
+(parameter correction), the smoothing re-chosen by leave-one-out at the corrected
+parameters and polished again; then, with ``refine``, control points, weights and
+parameters are refined jointly (:mod:`psonurbs.refine`) and polished once more, kept
+only for a real gain. ``strategy: full`` is the paper's own search space (Eq. 10,
+:mod:`psonurbs.paper`): the swarm's best surface is the result.
 """
 from __future__ import annotations
 
@@ -66,7 +70,8 @@ def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots and weights (least-squares control points), then the polish."""
+    """Swarm over knots, weights and smoothing (least-squares control points), then the
+    polish and the optional joint refinement."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
     search = KnotWeightSearch(layout, solver, cloud.points[sample], par.uv[sample], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
