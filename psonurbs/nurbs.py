@@ -19,18 +19,6 @@ import scipy.sparse as sp
 from .basis import design_matrix, tensor_basis
 
 
-def rational_basis(tensor: sp.csr_array, weights: np.ndarray) -> sp.csr_array:
-    """``R = diag(1 / (T w)) T diag(w)``: the rational basis from the tensor basis T.
-
-    With R, the surface at the rows' parameters is ``R @ P`` (P flattened row-major).
-    """
-    weights = np.ravel(weights)
-    den = tensor @ weights
-    data = tensor.data * weights[tensor.indices]
-    data /= np.repeat(den, np.diff(tensor.indptr))
-    return sp.csr_array((data, tensor.indices, tensor.indptr), shape=tensor.shape)
-
-
 @dataclass
 class NurbsSurface:
     degree_u: int

@@ -60,8 +60,18 @@ class Rows:
         wb = self.values * weights[self.columns]
         return Rows(wb / wb.sum(axis=1, keepdims=True), self.columns, self.n_columns, self.cells)
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (len(self.values), self.n_columns)
+
     def __matmul__(self, coeffs: np.ndarray) -> np.ndarray:
         return np.einsum("nm,nm...->n...", self.values, coeffs[self.columns])
+
+    def toarray(self) -> np.ndarray:
+        """The dense (N, n) matrix (entries of a repeated column add up)."""
+        dense = np.zeros(self.shape)
+        np.add.at(dense, (np.arange(len(self.values))[:, None], self.columns), self.values)
+        return dense
 
     def blocks(self) -> "CellBlocks":
         return CellBlocks(self)
