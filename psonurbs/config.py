@@ -29,12 +29,11 @@ import numbers
 import os
 import re
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping
 
 import yaml
 
-from psonurbs.errors import ConfigError
+from psonurbs.errors import ConfigError, existing_file
 
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
@@ -338,12 +337,8 @@ def load_config(path: str | os.PathLike | None) -> FitConfig:
     """Read and validate a YAML config file; ``None`` gives the defaults."""
     if path is None:
         return FitConfig()
-    path = Path(path)
+    path = existing_file(path, "a config file", ConfigError, missing="config file not found")
     name = str(path)
-    if not path.exists():
-        raise ConfigError(f"{name}: config file not found")
-    if path.is_dir():
-        raise ConfigError(f"{name}: is a directory, not a config file")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:

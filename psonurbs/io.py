@@ -25,7 +25,7 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from psonurbs.errors import InputError
+from psonurbs.errors import InputError, existing_file
 
 __all__ = [
     "CLOUD_SUFFIXES",
@@ -57,12 +57,8 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
     file, a directory, an unknown extension, an unreadable, empty or malformed
     file, a PLY without vertices, and NaN or infinite coordinates.
     """
-    path = Path(path)
+    path = existing_file(path, "a point cloud file", InputError)
     name = str(path)
-    if not path.exists():
-        raise InputError(f"{name}: no such file")
-    if path.is_dir():
-        raise InputError(f"{name}: is a directory, not a point cloud file")
     suffix = path.suffix.lower()
     if suffix not in CLOUD_SUFFIXES:
         shown = f"'{path.suffix}'" if path.suffix else "no extension"

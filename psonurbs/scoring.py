@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, existing_file
 from .nurbs import NurbsSurface
 
 __all__ = ["load_surface", "point_distances", "score", "PERCENTILES"]
@@ -25,12 +24,8 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
 
     Raises :class:`InputError` naming the file for anything that is not a surface.
     """
-    path = Path(path)
+    path = existing_file(path, "a surface JSON file", InputError)
     name = str(path)
-    if not path.exists():
-        raise InputError(f"{name}: no such file")
-    if path.is_dir():
-        raise InputError(f"{name}: is a directory, not a surface JSON file")
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
