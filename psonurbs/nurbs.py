@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .basis import design_matrix, tensor_basis
+from .basis import clamped_knots, design_matrix, tensor_basis
 
 
 @dataclass
@@ -96,6 +96,42 @@ class NurbsSurface:
         """Triangle mesh of the surface on an n_u x n_v parameter grid."""
         grid = self.evaluate_grid(*self.parameter_grid(n_u, n_v))
         return grid.reshape(-1, 3), grid_triangles(n_u, n_v)
+
+    def restricted(self, u_range: tuple[float, float] = (0.0, 1.0),
+                   v_range: tuple[float, float] = (0.0, 1.0)) -> "NurbsSurface":
+        """The same surface on the sub-domain u_range x v_range, reparametrised onto
+        [0, 1]^2 with the same net size (open directions only).
+
+        Exact: the restriction of a spline to [a, b] lies in the spline space of the knots
+        inside (a, b), clamped at a and b (knot insertion); spans whose knots fall
+        outside are given back by halving the widest span, so the net keeps its size.
+        The homogeneous net (w P, w) is solved direction by direction from collocation.
+        """
+        net = np.concatenate([self.control_points * self.weights[..., None], self.weights[..., None]], axis=2)
+        knots = [self.knots_u, self.knots_v]
+        for k, ((a, b), degree, closed) in enumerate(((u_range, self.degree_u, self.closed_u),
+                                                      (v_range, self.degree_v, self.closed_v))):
+            if (a, b) == (0.0, 1.0):
+                continue
+            if closed:
+                raise ValueError("a closed direction cannot be restricted")
+            n = net.shape[k]
+            inner = knots[k][degree + 1:n]
+            inner = list((inner[(inner > a) & (inner < b)] - a) / (b - a))
+            while len(inner) < n - degree - 1:
+                edges = np.concatenate([[0.0], inner, [1.0]])
+                widest = int(np.argmax(np.diff(edges)))
+                inner = sorted(inner + [0.5 * (edges[widest] + edges[widest + 1])])
+            new_knots = clamped_knots(n, degree, np.array(inner))
+            x = np.linspace(0.0, 1.0, 4 * n)
+            old = design_matrix(a + (b - a) * x, knots[k], degree).toarray()
+            new = design_matrix(x, new_knots, degree).toarray()
+            moved = np.moveaxis(net, k, 0)
+            solved = np.linalg.lstsq(new, np.einsum("xi,i...->x...", old, moved).reshape(len(x), -1), rcond=None)[0]
+            net = np.moveaxis(solved.reshape(moved.shape), 0, k)
+            knots[k] = new_knots
+        return NurbsSurface(self.degree_u, self.degree_v, knots[0], knots[1], net[..., :3] / net[..., 3:],
+                            net[..., 3], self.closed_u, self.closed_v)
 
     def to_dict(self) -> dict:
         return {

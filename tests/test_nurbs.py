@@ -484,3 +484,37 @@ def test_rational_basis_does_not_modify_its_input():
 def test_evaluate_no_points_gives_empty_array():
     surf = random_surface(71)
     assert surf.evaluate(np.array([]), np.array([])).shape == (0, 3)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_restricted_surface_is_the_same_surface_on_the_sub_domain(seed):
+    """Restriction by knot insertion is exact, keeps the net size (a span lost at the
+    ends is given back inside) and keeps the weights positive."""
+    rng = np.random.default_rng(seed)
+    surf = NurbsSurface(3, 2, clamped_knots(7, 3, np.array([0.2, 0.5, 0.7])), clamped_knots(5, 2, np.array([0.3, 0.6])),
+                        rng.normal(size=(7, 5, 3)), rng.uniform(0.5, 2.0, (7, 5)))
+    part = surf.restricted((0.25, 0.9), (0.1, 0.65))  # drops the inner knot 0.2 of u
+    assert part.shape == surf.shape and np.all(part.weights > 0)
+    u, v = rng.random((2, 200))
+    np.testing.assert_allclose(part.evaluate(u, v), surf.evaluate(0.25 + 0.65 * u, 0.1 + 0.55 * v), atol=1e-12)
+    assert part.domain_u == (0.0, 1.0) and part.domain_v == (0.0, 1.0)
+
+
+def test_restricted_quarter_circle_is_a_shorter_arc_with_the_circle_invariant():
+    """Half of the quarter cylinder's arc (0 to 45 degrees) is again an exact rational
+    quadratic, whose shape factor w1 / sqrt(w0 w2) is cos(22.5 degrees)."""
+    surf = extrude(QUARTER_PTS, QUARTER_W, QUARTER_KNOTS, 2)
+    half = surf.restricted((0.0, 0.5))
+    p = half.evaluate(*np.random.default_rng(2).random((2, 500)))
+    np.testing.assert_allclose(np.hypot(p[:, 0], p[:, 1]), 1.0, atol=1e-14)
+    assert np.arctan2(p[:, 1], p[:, 0]).max() <= np.pi / 4 + 1e-12
+    w = half.weights[:, 0]
+    np.testing.assert_allclose(w[1] / np.sqrt(w[0] * w[2]), np.cos(np.pi / 8), atol=1e-12)
+
+
+def test_a_closed_direction_cannot_be_restricted():
+    surf = extrude(QUARTER_PTS, QUARTER_W, QUARTER_KNOTS, 2)
+    closed = NurbsSurface(surf.degree_u, surf.degree_v, surf.knots_u, surf.knots_v, surf.control_points,
+                          surf.weights, closed_u=True)
+    with pytest.raises(ValueError, match="closed"):
+        closed.restricted((0.1, 0.9))
