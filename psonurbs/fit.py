@@ -33,6 +33,7 @@ from .topology import choose_topology, layout_for, parametrise_for
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 REFINE_GAIN = 0.05  # the joint refinement must lower the RMSE by this share to be kept
+EXACT = 1e-6  # an RMSE (share of the diagonal) at which the data lie on the surface: evaluation precision
 
 
 @dataclass
@@ -68,6 +69,27 @@ def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np
     return float(grid[int(np.argmin(errors))])
 
 
+def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+             control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
+             polish_iterations: int) -> NurbsSurface:
+    """The jointly refined surface with its edges back on the data.
+
+    The refinement may let the data retreat from an open direction's edges: the surface
+    then grows past the data's boundary at no cost and overshoots the true one. If the
+    refined surface is exact (the data on it to within ``EXACT``: a noise-free cloud of
+    a shape the net represents, e.g. a conic with the right weights) its only freedom
+    left is where it ends, and it is restricted exactly to the data's parameter extent.
+    Otherwise it is polished again with its weights, the data's edges re-aligned onto
+    the domain's at every round.
+    """
+    surface = layout.surface(control, weights, inner_u, inner_v)
+    if rms(closest_parameters(surface, points, uv)[1]) <= EXACT:
+        extent = [(0.0, 1.0) if layout.closed[k] else (float(uv[:, k].min()), float(uv[:, k].max()))
+                  for k in (0, 1)]
+        return surface.restricted(*extent)
+    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True)[1]
+
+
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), then the
@@ -92,10 +114,8 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     if config.refine:
         control, weights, uv, refine_steps = refine_jointly(layout, solver, cloud.points, uv, control, weights,
                                                             inner_u, inner_v, np.log(config.weight_bounds))
-        # the refinement may let the data retreat from the domain's edges (the surface then
-        # grows past them at no cost): polish again with its weights, data spanning the domain
-        _, refined, _, _ = polish(layout, solver, cloud.points, uv, weights, inner_u, inner_v,
-                                  config.polish_iterations)
+        refined = anchored(layout, solver, cloud.points, uv, control, weights, inner_u, inner_v,
+                           config.polish_iterations)
         # kept only for a real gain: on noisy data the extra freedom buys a percent or
         # two of RMSE by fitting the noise, at the price of the true shape
         kept = (rms(closest_parameters(refined, cloud.points)[1])

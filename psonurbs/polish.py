@@ -108,7 +108,7 @@ def align_to_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
 
 
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
-           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int):
+           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False):
     """Alternate the least-squares solve with parameter correction while the error falls.
 
     Returns the best control points (free), their surface, its foot-point parameters
@@ -124,5 +124,5 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
         if new_rmse >= rmse * (1.0 - 1e-4):
             break
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        uv = new_uv
+        uv = align_to_domain(new_uv, layout.closed) if realign else new_uv
     return best_control, best, best_uv, it
