@@ -94,7 +94,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), then the
     polish and the optional joint refinement."""
-    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     search = KnotWeightSearch(layout, solver, cloud.points[sample], par.uv[sample], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),

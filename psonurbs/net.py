@@ -74,34 +74,46 @@ class NetLayout:
 
         Second differences along u and v and the mixed difference (weight sqrt 2),
         periodic in a closed direction. A net that is affine in (i, j) costs nothing.
-        At a sphere's poles the second difference also runs across the pole, from a
-        meridian to the opposite one (``P[i, 1] - 2 pole + P[i + nu/2, 1]``): without it
-        nothing keeps the ring around a pole flat and the surface ends in a cone.
         """
         nu, nv = self.size
         d2u, d2v = (difference(n, 2, c) for n, c in zip(self.size, self.closed))
         d1u, d1v = (difference(n, 1, c) for n, c in zip(self.size, self.closed))
         iu, iv = sp.identity(nu), sp.identity(nv)
         parts = [sp.kron(d2u, iv), sp.kron(iu, d2v), np.sqrt(2.0) * sp.kron(d1u, d1v)]
-        if self.poles:
-            parts.append(self._across_poles())
-        op = sp.vstack(parts)
-        distinct_to_free = self.free_index[self._first_full_of_distinct()]
-        fold = sp.csr_array((np.ones(nu * nv), (np.arange(nu * nv), distinct_to_free)),
-                            shape=(nu * nv, self.n_free))
-        return sp.csr_array(op @ fold)
+        return sp.csr_array(sp.vstack(parts) @ self._distinct_to_free())
 
-    def _across_poles(self) -> sp.csr_array:
-        """Second differences through each pole between opposite meridians (distinct net)."""
+    def constraint_operator(self) -> sp.csr_array | None:
+        """Linear conditions ``C P = 0`` on the free points, or None: at a sphere's poles,
+        a tangent plane (:meth:`_pole_tangent_planes`)."""
+        if not self.poles:
+            return None
+        return sp.csr_array(self._pole_tangent_planes() @ self._distinct_to_free())
+
+    def _distinct_to_free(self) -> sp.csr_array:
+        """0/1 matrix taking the free points to the distinct net (nu * nv rows)."""
         nu, nv = self.size
-        i = np.arange(nu)
-        opposite = (i + nu // 2) % nu
-        rows, cols, vals = [], [], []
-        for k, (pole, ring) in enumerate(((0, 1), (nv - 1, nv - 2))):
-            for c, w in ((i * nv + ring, 1.0), (np.full(nu, pole), -2.0), (opposite * nv + ring, 1.0)):
-                rows.append(k * nu + i), cols.append(c), vals.append(np.full(nu, w))
-        rows, cols, vals = (np.concatenate(x) for x in (rows, cols, vals))
-        return sp.csr_array((vals, (rows, cols)), shape=(2 * nu, nu * nv))
+        distinct_to_free = self.free_index[self._first_full_of_distinct()]
+        return sp.csr_array((np.ones(nu * nv), (np.arange(nu * nv), distinct_to_free)), shape=(nu * nv, self.n_free))
+
+    def _pole_tangent_planes(self) -> sp.csr_array:
+        """Rows on the distinct net that vanish exactly when each pole's first ring is the
+        pole plus an affine image of a circle, ``P[i, 1] = pole + a cos(2 pi i / nu) + b sin(2 pi i / nu)``.
+
+        Then every direction leaving the pole lies in the plane of a and b: the surface
+        has a tangent plane at the pole (G1) instead of a cone or a nipple. The rows are
+        ``Q (P[:, 1] - pole)`` with Q the projector off span(cos, sin) (Q 1 = 1).
+        """
+        nu, nv = self.size
+        angle = 2.0 * np.pi * np.arange(nu) / nu
+        circle = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        q = np.eye(nu) - circle @ np.linalg.pinv(circle)
+        blocks = []
+        for pole, ring in ((0, 1), (nv - 1, nv - 2)):
+            block = np.zeros((nu, nu * nv))
+            block[:, np.arange(nu) * nv + ring] = q
+            block[:, pole] -= q.sum(axis=1)
+            blocks.append(block)
+        return sp.csr_array(np.vstack(blocks))
 
     def _first_full_of_distinct(self) -> np.ndarray:
         fu, fv = self.full_shape

@@ -4,7 +4,7 @@ Alternating parameter correction with linear least squares converges slowly and
 cannot move the weights. Here all of them are the unknowns of one non-linear least
 squares problem (the knots stay where the swarm put them):
 
-    min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2
+    min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
 
 With R the rational basis at the points, the Jacobian of point i's residual is
 
@@ -42,17 +42,15 @@ class JointProblem:
         self.layout, self.solver, self.points = layout, solver, points
         self.inner = (inner_u, inner_v)
         self.n = layout.n_free
-        self.control_penalty = np.kron(solver.penalty, np.eye(3))
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
         """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
         residual = rows @ control - self.points
-        s = self.solver
-        lam = s.smoothing * float(np.sum(rows.values ** 2)) / s.penalty_trace if s.penalty_trace > 0 else 0.0
+        penalty = np.kron(self.solver.regulariser(float(np.sum(rows.values ** 2))), np.eye(3))
         p = control.ravel()
-        objective = float(np.sum(residual ** 2) + lam * p @ (self.control_penalty @ p))
-        return {"rows": rows, "residual": residual, "lam": lam, "objective": objective}
+        objective = float(np.sum(residual ** 2) + p @ (penalty @ p))
+        return {"rows": rows, "residual": residual, "penalty": penalty, "objective": objective}
 
     def pinned(self, uv: np.ndarray, d_uv: np.ndarray) -> np.ndarray:
         """(N, 2) mask of open-direction parameters that the step would push out of [0, 1]:
@@ -74,7 +72,7 @@ class JointProblem:
                        for k in range(3)], axis=1)  # (N, 3, 4m)
         stacked = Rows(jn.reshape(-1, jn.shape[2]), np.repeat(columns, 3, axis=0), 4 * n, np.repeat(rows.cells, 3))
         penalty = np.zeros((4 * n, 4 * n))
-        penalty[:3 * n, :3 * n] = ev["lam"] * self.control_penalty
+        penalty[:3 * n, :3 * n] = ev["penalty"]
         gram = stacked.gram() + penalty
         g = stacked.project(res.reshape(-1, 1))[:, 0] + penalty @ np.concatenate([control.ravel(), np.zeros(n)])
         return {"v": v, "s": s, "jl": np.stack([su, sv], axis=2), "columns": columns, "cells": rows.cells,

@@ -29,6 +29,8 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+CONSTRAINT_WEIGHT = 1e4  # a condition C P = 0 weighs this much more than the data: imposed
+
 
 @dataclass
 class Rows:
@@ -123,11 +125,18 @@ class CellBlocks:
 
 
 class RegularisedLeastSquares:
-    """Solver for ``min |R P - X|^2 + lam |L P|^2`` with a fixed operator L."""
+    """Solver for ``min |R P - X|^2 + lam |L P|^2 + kappa |C P|^2``.
 
-    def __init__(self, smoothness: sp.csr_array, smoothing: float):
+    L is the smoothness operator, weighted by the smoothing ``lam``; C holds linear
+    conditions the net must meet (``C P = 0``, e.g. a tangent plane at a pole), imposed
+    by a penalty ``CONSTRAINT_WEIGHT`` times stronger than the data. Both weights are
+    relative: scaled by ``tr(R^T R)`` over the trace of their own term.
+    """
+
+    def __init__(self, smoothness: sp.csr_array, smoothing: float, constraints: sp.csr_array | None = None):
         self.penalty = (smoothness.T @ smoothness).toarray()
         self.penalty_trace = float(np.trace(self.penalty))
+        self.condition = None if constraints is None else (constraints.T @ constraints).toarray()
         self.smoothing = smoothing
 
     def with_smoothing(self, smoothing: float) -> "RegularisedLeastSquares":
@@ -136,11 +145,18 @@ class RegularisedLeastSquares:
         other.smoothing = float(smoothing)
         return other
 
+    def regulariser(self, trace: float) -> np.ndarray:
+        """``lam L^T L + kappa C^T C`` for data whose Gram matrix has this trace."""
+        out = (self.smoothing * trace / self.penalty_trace) * self.penalty if self.penalty_trace > 0 \
+            else np.zeros_like(self.penalty)
+        if self.condition is not None:
+            out = out + (CONSTRAINT_WEIGHT * trace / np.trace(self.condition)) * self.condition
+        return out
+
     def normal_matrix(self, gram: np.ndarray) -> np.ndarray:
-        """``M = R^T R + lam L^T L`` plus a tiny ridge that keeps M positive definite."""
+        """``M = R^T R + lam L^T L + kappa C^T C`` plus a tiny ridge that keeps M positive definite."""
         trace = float(np.trace(gram))
-        lam = self.smoothing * trace / self.penalty_trace if self.penalty_trace > 0 else 0.0
-        system = gram + lam * self.penalty
+        system = gram + self.regulariser(trace)
         system[np.diag_indices_from(system)] += 1e-12 * trace / len(gram)
         return system
 

@@ -64,7 +64,7 @@ def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str 
 
 def classical_error(layout: NetLayout, par: Parametrisation, points: np.ndarray, config) -> float:
     """Leave-one-out RMSE of the classical fit (uniform knots, unit weights)."""
-    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     search = KnotWeightSearch(layout, solver, points, par.uv, config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     return search.error(search.classical())

@@ -118,6 +118,11 @@ def test_sphere_topology_collapses_poles_and_fits():
     assert np.ptp(cp[:, 0], axis=0).max() < 1e-12 and np.ptp(cp[:, -1], axis=0).max() < 1e-12
     assert res.metrics["rmse_relative"] < 5e-3
     assert res.metrics["control_points"] == 6 * 3 + 2
+    # a tangent plane at each pole: the first ring's offsets from the pole span a plane
+    for pole, ring in ((0, 1), (-1, -2)):
+        offsets = cp[:6, ring] - cp[0, pole]
+        singular = np.linalg.svd(offsets, compute_uv=False)
+        assert singular[2] < 1e-3 * singular[0]
 
 
 def franke(n=300, seed=4, noise=0.01):

@@ -277,19 +277,30 @@ def test_choose_topology(expected, cloud):
     assert par.uv.shape == (len(pts), 2)
 
 
-def test_sphere_smoothness_penalises_a_pointed_pole():
-    """Across a pole the operator compares opposite meridians: a flat ring around the
-    pole costs nothing there, a pole raised out of the ring's plane (a cone) does."""
+def test_pole_conditions_hold_for_a_tangent_plane_and_fail_for_a_cone_or_a_saddle():
+    """At each pole the first ring must be the pole plus an affine image of a circle
+    (P[i, 1] = pole + a cos + b sin): any such ring, tilted or elliptic, meets the
+    conditions; a pole lifted off its ring (a cone) or a saddle-shaped ring does not."""
     layout = NetLayout((6, 5), (3, 3), (True, False), poles=True)
-    across = layout._across_poles()
+    rows = layout._pole_tangent_planes().toarray()
     nu, nv = layout.size
     t = 2 * np.pi * np.arange(nu) / nu
-    net = np.zeros((nu, nv, 3))
-    for j, radius in enumerate([0.0, 1.0, 2.0, 1.0, 0.0]):  # both pole rows at the centre
-        net[:, j] = np.column_stack([np.cos(t) * radius, np.sin(t) * radius, np.zeros(nu)])
-    flat = net.reshape(-1, 3)
-    np.testing.assert_allclose(across @ flat, 0.0, atol=1e-12)
+    rng = np.random.default_rng(0)
+    net = rng.normal(size=(nu, nv, 3))  # the middle rows are free
+    for pole, ring in ((0, 1), (nv - 1, nv - 2)):
+        centre, a, b = rng.normal(size=(3, 3))
+        net[:, pole] = centre
+        net[:, ring] = centre + np.cos(t)[:, None] * a + np.sin(t)[:, None] * b
+    np.testing.assert_allclose(rows @ net.reshape(-1, 3), 0.0, atol=1e-12)
     cone = net.copy()
-    cone[:, 0, 2] = 1.0  # the pole (row 0) lifted by 1 above its ring
-    values = across @ cone.reshape(-1, 3)
-    np.testing.assert_allclose(values[:nu, 2], -2.0)  # P[i,1] - 2 pole + P[i+3,1] in z
+    cone[:, 0] += [0.0, 0.0, 1.0]  # the south pole lifted by 1 off its ring's plane
+    np.testing.assert_allclose((rows @ cone.reshape(-1, 3))[:nu], np.tile([0.0, 0.0, -1.0], (nu, 1)), atol=1e-12)
+    saddle = net.copy()
+    saddle[:, nv - 2, 2] += np.cos(2 * t)  # the north ring bent up and down twice
+    assert np.abs(rows @ saddle.reshape(-1, 3))[nu:, 2].max() > 0.5
+
+
+def test_only_the_sphere_layout_has_conditions():
+    assert layout_for("sphere", (6, 5), (3, 3)).constraint_operator().shape == (12, 6 * 3 + 2)
+    for name in ("open", "cylinder", "torus"):
+        assert layout_for(name, (6, 5), (3, 3)).constraint_operator() is None
