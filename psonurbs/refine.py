@@ -47,10 +47,9 @@ class JointProblem:
         """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
         residual = rows @ control - self.points
-        penalty = np.kron(self.solver.regulariser(float(np.sum(rows.values ** 2))), np.eye(3))
-        p = control.ravel()
-        objective = float(np.sum(residual ** 2) + p @ (penalty @ p))
-        return {"rows": rows, "residual": residual, "penalty": penalty, "objective": objective}
+        regulariser = self.solver.regulariser(float(np.sum(rows.values ** 2)))  # per coordinate
+        objective = float(np.sum(residual ** 2) + np.sum(control * (regulariser @ control)))
+        return {"rows": rows, "residual": residual, "regulariser": regulariser, "objective": objective}
 
     def pinned(self, uv: np.ndarray, d_uv: np.ndarray) -> np.ndarray:
         """(N, 2) mask of open-direction parameters that the step would push out of [0, 1]:
@@ -72,7 +71,7 @@ class JointProblem:
                        for k in range(3)], axis=1)  # (N, 3, 4m)
         stacked = Rows(jn.reshape(-1, jn.shape[2]), np.repeat(columns, 3, axis=0), 4 * n, np.repeat(rows.cells, 3))
         penalty = np.zeros((4 * n, 4 * n))
-        penalty[:3 * n, :3 * n] = ev["penalty"]
+        penalty[:3 * n, :3 * n] = np.kron(ev["regulariser"], np.eye(3))
         gram = stacked.gram() + penalty
         g = stacked.project(res.reshape(-1, 1))[:, 0] + penalty @ np.concatenate([control.ravel(), np.zeros(n)])
         return {"v": v, "s": s, "jl": np.stack([su, sv], axis=2), "columns": columns, "cells": rows.cells,

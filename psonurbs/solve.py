@@ -137,6 +137,7 @@ class RegularisedLeastSquares:
         self.penalty = (smoothness.T @ smoothness).toarray()
         self.penalty_trace = float(np.trace(self.penalty))
         self.condition = None if constraints is None else (constraints.T @ constraints).toarray()
+        self.condition_trace = None if constraints is None else float(np.trace(self.condition))
         self.smoothing = smoothing
 
     def with_smoothing(self, smoothing: float) -> "RegularisedLeastSquares":
@@ -150,7 +151,7 @@ class RegularisedLeastSquares:
         out = (self.smoothing * trace / self.penalty_trace) * self.penalty if self.penalty_trace > 0 \
             else np.zeros_like(self.penalty)
         if self.condition is not None:
-            out = out + (CONSTRAINT_WEIGHT * trace / np.trace(self.condition)) * self.condition
+            out = out + (CONSTRAINT_WEIGHT * trace / self.condition_trace) * self.condition
         return out
 
     def normal_matrix(self, gram: np.ndarray) -> np.ndarray:
