@@ -68,20 +68,34 @@ class NurbsSurface:
         """Points S(u_r, v_r), shape (N, 3)."""
         return self.derivatives(u, v, first=False)[0]
 
-    def derivatives(self, u: np.ndarray, v: np.ndarray, first: bool = True):
-        """S, and with ``first`` the partials S_u, S_v (quotient rule on A / w)."""
+    def derivatives(self, u: np.ndarray, v: np.ndarray, first: bool = True, second: bool = False):
+        """S; with ``first`` also S_u, S_v; with ``second`` also S_uu, S_uv, S_vv.
+
+        Quotient rule on S = A / w (A the weighted net's spline, w the weights' spline):
+        S_u = (A_u - w_u S) / w,  S_uu = (A_uu - 2 w_u S_u - w_uu S) / w,
+        S_uv = (A_uv - w_u S_v - w_v S_u - w_uv S) / w.
+        """
         w = self.weights.reshape(-1)
         aw = (self.control_points * self.weights[..., None]).reshape(-1, 3)
-        t = self.tensor(u, v)
-        den = t @ w
-        s = (t @ aw) / den[:, None]
-        if not first:
+
+        def spline(du: int, dv: int) -> tuple[np.ndarray, np.ndarray]:
+            t = self.tensor(u, v, du, dv)
+            return t @ aw, t @ w
+
+        a, den = spline(0, 0)
+        s = a / den[:, None]
+        if not (first or second):
             return (s,)
-        out = [s]
-        for du, dv in ((1, 0), (0, 1)):
-            td = self.tensor(u, v, du, dv)
-            out.append(((td @ aw) - (td @ w)[:, None] * s) / den[:, None])
-        return tuple(out)
+        (a_u, w_u), (a_v, w_v) = spline(1, 0), spline(0, 1)
+        s_u = (a_u - w_u[:, None] * s) / den[:, None]
+        s_v = (a_v - w_v[:, None] * s) / den[:, None]
+        if not second:
+            return s, s_u, s_v
+        (a_uu, w_uu), (a_uv, w_uv), (a_vv, w_vv) = spline(2, 0), spline(1, 1), spline(0, 2)
+        s_uu = (a_uu - 2 * w_u[:, None] * s_u - w_uu[:, None] * s) / den[:, None]
+        s_uv = (a_uv - w_u[:, None] * s_v - w_v[:, None] * s_u - w_uv[:, None] * s) / den[:, None]
+        s_vv = (a_vv - 2 * w_v[:, None] * s_v - w_vv[:, None] * s) / den[:, None]
+        return s, s_u, s_v, s_uu, s_uv, s_vv
 
     def parameter_grid(self, n_u: int, n_v: int) -> tuple[np.ndarray, np.ndarray]:
         """Equally spaced parameters spanning the whole domain in each direction."""

@@ -1,12 +1,15 @@
 """Parameter correction: move each point's (u, v) to its closest point on the surface.
 
-The foot point of x on S minimises |S(u, v) - x|^2. From a start (the nearest vertex
-of a dense tessellation, or the previous parameters) Gauss-Newton steps
+The foot point of x on S minimises f(u, v) = |S(u, v) - x|^2 / 2 over the domain. From a
+start (the nearest vertex of a dense tessellation, or the previous parameters) Newton
+steps H d = -g are taken for all points at once, with
 
-    [S_u S_v]^T [S_u S_v] d = -[S_u S_v]^T (S - x)
+    g = [S_u.r, S_v.r],   H = [[S_u.S_u + r.S_uu, S_u.S_v + r.S_uv], [., S_v.S_v + r.S_vv]],
 
-are taken for all points at once; a step is kept only where it brings the point closer,
-and parameters are clamped to [0, 1] (open) or wrapped (closed).
+r = S - x (Gauss-Newton's H without the r terms where the full H is not positive
+definite). A parameter on an open edge whose descent leads off the domain is held on
+the edge and the step taken in the other one alone (an active set), and a step is
+halved until it brings the point closer. Closed directions wrap.
 """
 from __future__ import annotations
 
@@ -42,32 +45,55 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
         res = resolution or int(np.clip(8 * max(surface.shape), 64, 256))
         uv = nearest_on_grid(surface, points, res)
     uv = keep_in_domain(uv, closed)
-    s = surface.evaluate(uv[:, 0], uv[:, 1])
-    dist2 = np.sum((s - points) ** 2, axis=1)
+    dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
+    active = np.arange(len(points))
     for _ in range(iterations):
-        s, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
-        r = s - points
-        a, b, c = np.sum(su * su, 1), np.sum(su * sv, 1), np.sum(sv * sv, 1)
-        gu, gv = np.sum(su * r, 1), np.sum(sv * r, 1)
-        damp = 1e-12 * (a + c) + 1e-300
-        det = (a + damp) * (c + damp) - b * b
-        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-        du = -((c + damp) * gu - b * gv) / det
-        dv = -((a + damp) * gv - b * gu) / det
-        step = np.stack([du, dv], axis=1)
-        moved = np.zeros(len(points), bool)
-        for scale in (1.0, 0.5, 0.25):  # a step that overshoots is retried shorter
+        step = foot_point_step(surface, points[active], uv[active], closed)
+        moved = np.zeros(len(active), bool)
+        for halving in range(LINE_SEARCH_HALVINGS):
             todo = np.flatnonzero(~moved)
-            trial = keep_in_domain(uv[todo] + scale * step[todo], closed)
-            trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[todo]) ** 2, axis=1)
-            better = trial_d2 < dist2[todo]
-            uv[todo[better]], dist2[todo[better]] = trial[better], trial_d2[better]
+            trial = keep_in_domain(uv[active[todo]] + 0.5 ** halving * step[todo], closed)
+            trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[active[todo]]) ** 2, axis=1)
+            better = trial_d2 < dist2[active[todo]]
+            uv[active[todo[better]]], dist2[active[todo[better]]] = trial[better], trial_d2[better]
             moved[todo[better]] = True
             if moved.all():
                 break
-        if not moved.any():
+        active = active[moved]
+        if len(active) == 0:
             break
     return uv, np.sqrt(dist2)
+
+
+LINE_SEARCH_HALVINGS = 8
+
+
+def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,
+                    closed: tuple[bool, bool]) -> np.ndarray:
+    """One bounded Newton step (du, dv) per point towards its foot point."""
+    s, su, sv, suu, suv, svv = surface.derivatives(uv[:, 0], uv[:, 1], second=True)
+    r = s - points
+    g = np.stack([np.sum(su * r, 1), np.sum(sv * r, 1)], axis=1)
+    gauss = np.stack([np.sum(su * su, 1), np.sum(su * sv, 1), np.sum(sv * sv, 1)], axis=1)
+    newton = gauss + np.stack([np.sum(r * suu, 1), np.sum(r * suv, 1), np.sum(r * svv, 1)], axis=1)
+    convex = (newton[:, 0] > 0) & (newton[:, 0] * newton[:, 2] - newton[:, 1] ** 2 > 0)
+    h = np.where(convex[:, None], newton, gauss)
+    h[:, [0, 2]] += 1e-12 * (h[:, [0]] + h[:, [2]]) + 1e-300
+    # an open edge holds a parameter whose descent -g leaves the domain
+    held = np.zeros_like(g, bool)
+    for k in (0, 1):
+        if not closed[k]:
+            held[:, k] = ((uv[:, k] <= 0.0) & (g[:, k] > 0)) | ((uv[:, k] >= 1.0) & (g[:, k] < 0))
+    step = np.zeros_like(g)
+    both = ~held[:, 0] & ~held[:, 1]
+    det = h[both, 0] * h[both, 2] - h[both, 1] ** 2
+    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+    step[both, 0] = -(h[both, 2] * g[both, 0] - h[both, 1] * g[both, 1]) / det
+    step[both, 1] = -(h[both, 0] * g[both, 1] - h[both, 1] * g[both, 0]) / det
+    only_u, only_v = ~held[:, 0] & held[:, 1], held[:, 0] & ~held[:, 1]
+    step[only_u, 0] = -g[only_u, 0] / h[only_u, 0]
+    step[only_v, 1] = -g[only_v, 1] / h[only_v, 2]
+    return step
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:

@@ -181,13 +181,6 @@ def test_rmse_equals_dense_tessellation_distance(franke_fit):
     assert res.metrics["rmse_relative"] == pytest.approx(res.metrics["rmse"] / diag, rel=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "bug: polish.closest_parameters keeps a Gauss-Newton step only if the FULL step brings the point "
-    "closer and never shortens it, so a point whose first full step overshoots stays at its start "
-    "vertex of the tessellation: here 12 of 300 points report a distance above one of a dense "
-    "sample of the surface (up to 2.8x). In fits this inflates metrics['rmse'] and misleads polish/"
-    "refine (franke fit at HEAD: point 131 reports 0.0160, the surface passes within 0.0031; half "
-    "the step gives 0.0117)"))
 def test_foot_points_are_never_farther_than_a_sampled_point():
     layout = NetLayout((6, 6), (3, 3))
     i, j = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6), indexing="ij")

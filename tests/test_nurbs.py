@@ -226,6 +226,37 @@ def test_partials_match_central_differences(seed):
         assert np.all(err <= 1e-6 * np.maximum(np.linalg.norm(d, axis=1), 1.0)), err.max()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_second_partials_match_central_differences_of_first(seed):
+    surf = random_surface(seed, pu=3, pv=2, nu=6, nv=5)
+    rng = np.random.default_rng(seed + 11)
+    h = 1e-6
+    u = rng.uniform(2 * h, 1 - 2 * h, 200)
+    v = rng.uniform(2 * h, 1 - 2 * h, 200)
+    s, su, sv, suu, suv, svv = surf.derivatives(u, v, second=True)
+    np.testing.assert_array_equal(np.stack([s, su, sv]), np.stack(surf.derivatives(u, v)))
+    plus_u, minus_u = surf.derivatives(u + h, v), surf.derivatives(u - h, v)
+    plus_v, minus_v = surf.derivatives(u, v + h), surf.derivatives(u, v - h)
+    fuu = (plus_u[1] - minus_u[1]) / (2 * h)
+    fuv = (plus_u[2] - minus_u[2]) / (2 * h)
+    fvu = (plus_v[1] - minus_v[1]) / (2 * h)
+    fvv = (plus_v[2] - minus_v[2]) / (2 * h)
+    for d, f in ((suu, fuu), (suv, fuv), (suv, fvu), (svv, fvv)):
+        err = np.linalg.norm(d - f, axis=1)
+        assert np.all(err <= 1e-5 * np.maximum(np.linalg.norm(d, axis=1), 1.0)), err.max()
+
+
+def test_quarter_circle_second_partial_gives_unit_curvature():
+    surf = extrude(QUARTER_PTS, QUARTER_W, QUARTER_KNOTS, 2)
+    u = np.linspace(0, 1, 101)
+    _, su, sv, suu, suv, svv = surf.derivatives(u, np.full_like(u, 0.3), second=True)
+    # a unit circle: |S_u x S_uu| / |S_u|^3 = 1, and the extrusion is straight in v
+    curvature = np.linalg.norm(np.cross(su, suu), axis=1) / np.linalg.norm(su, axis=1) ** 3
+    np.testing.assert_allclose(curvature, 1.0, rtol=1e-12)
+    np.testing.assert_allclose(suv, 0.0, atol=1e-14)
+    np.testing.assert_allclose(svv, 0.0, atol=1e-14)
+
+
 def test_partials_match_independent_quotient_rule():
     surf = random_surface(9, pu=3, pv=3, nu=7, nv=5)
     rng = np.random.default_rng(9)
