@@ -59,13 +59,15 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
             moved[todo[better]] = True
             if moved.all():
                 break
-        active = active[moved]
+        # a point is done once it stops moving or its step falls below PARAMETER_TOLERANCE
+        active = active[moved & (np.abs(step).max(axis=1) > PARAMETER_TOLERANCE)]
         if len(active) == 0:
             break
     return uv, np.sqrt(dist2)
 
 
 LINE_SEARCH_HALVINGS = 8
+PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
 
 
 def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,
