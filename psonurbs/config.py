@@ -164,7 +164,7 @@ class FitConfig:
     swarm: SwarmConfig = field(default_factory=SwarmConfig)
     smoothing: float = 1e-6
     swarm_points: int = 1500
-    polish_iterations: int = 20
+    polish_iterations: int = 100
     tessellation: tuple[int, int] = (101, 101)
     weight_bounds: tuple[float, float] = (0.2, 5.0)
     min_knot_gap: float = 0.2

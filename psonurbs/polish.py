@@ -135,22 +135,66 @@ def align_to_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
     return out
 
 
+class AndersonMixing:
+    """Anderson acceleration of a fixed-point iteration x <- G(x) (Walker & Ni 2011).
+
+    With the residuals f_k = G(x_k) - x_k of the last ``depth`` rounds, the next iterate
+    is G(x_k) - dG c, where c = argmin |f_k - dF c| over the differences dF, dG of
+    successive residuals and images: the secant model's fixed point. Parameter
+    correction alone converges linearly, with a rate near 1 on dense data; mixed, it
+    needs a few times fewer rounds. Closed directions are differenced modulo 1, so the
+    result is unwrapped: the caller maps it back into the domain.
+    """
+
+    def __init__(self, closed: tuple[bool, bool], depth: int = 5):
+        self.closed, self.depth = np.asarray(closed), depth
+        self.images: list[np.ndarray] = []
+        self.residuals: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self.images, self.residuals = [], []
+
+    @property
+    def mixing(self) -> bool:
+        return len(self.residuals) > 1
+
+    def next(self, x: np.ndarray, image: np.ndarray) -> np.ndarray:
+        f = image - x
+        f[:, self.closed] = (f[:, self.closed] + 0.5) % 1.0 - 0.5
+        g = x + f  # the image, unwrapped next to x
+        self.images, self.residuals = (self.images + [g])[-self.depth - 1:], (self.residuals + [f])[-self.depth - 1:]
+        if not self.mixing:
+            return g
+        d_f = np.stack([(b - a).ravel() for a, b in zip(self.residuals, self.residuals[1:])], axis=1)
+        d_g = np.stack([(b - a).ravel() for a, b in zip(self.images, self.images[1:])], axis=1)
+        c = np.linalg.lstsq(d_f, f.ravel(), rcond=None)[0]
+        return g - (d_g @ c).reshape(g.shape)
+
+
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
            weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False):
-    """Alternate the least-squares solve with parameter correction while the error falls.
+    """Alternate the least-squares solve with parameter correction while the error falls,
+    the parameters Anderson-mixed (restarted plainly from the best when a mixed round
+    does not lower the error).
 
     Returns the best control points (free), their surface, its foot-point parameters
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
     uv = align_to_domain(uv, layout.closed)
+    mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
         surface = layout.surface(control, weights, inner_u, inner_v)
         new_uv, dist = closest_parameters(surface, points, uv)
         new_rmse = float(np.sqrt(np.mean(dist ** 2)))
         if new_rmse >= rmse * (1.0 - 1e-4):
-            break
+            if not mixer.mixing:
+                break
+            mixer.reset()
+            uv = best_image
+            continue
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        uv = align_to_domain(new_uv, layout.closed) if realign else new_uv
+        best_image = align_to_domain(new_uv, layout.closed) if realign else new_uv
+        uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
     return best_control, best, best_uv, it

@@ -35,7 +35,7 @@ def test_defaults_match_the_spec():
     assert (c.orders, c.net_size, c.topology, c.strategy) == ((3, 3), (5, 5), "open", "hybrid")
     assert c.swarm == SwarmConfig(particles=40, iterations=300, inertia=0.7, c1=1.5, c2=1.5, seed=7)
     assert c.degrees == (2, 2)
-    assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-6, 1500, 20)
+    assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-6, 1500, 100)
     assert c.tessellation == (101, 101)
     assert c.weight_bounds == (0.2, 5.0)
     assert (c.min_knot_gap, c.cross_validation, c.remove_outliers) == (0.2, True, False)

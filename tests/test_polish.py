@@ -1,0 +1,68 @@
+"""Parameter correction: foot points on the edges, and the Anderson mixing of the polish."""
+from __future__ import annotations
+
+import numpy as np
+
+from psonurbs.net import NetLayout
+from psonurbs.polish import AndersonMixing, closest_parameters
+
+
+def sheared_plane():
+    """S(u, v) = (u + 0.8 v, v, 0): a cubic net with linear precision, S_u . S_v != 0."""
+    layout = NetLayout((4, 4), (3, 3))
+    i, j = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), indexing="ij")
+    net = np.stack([i + 0.8 * j, j, np.zeros_like(i)], -1).reshape(-1, 3)
+    return layout.surface(net, np.ones(16))
+
+
+def test_point_beyond_an_edge_slides_along_it_to_its_foot():
+    # beyond the edge u = 1 the foot is the nearest point of the edge line (1 + 0.8 v, v):
+    # v = (y + 0.8 (x - 1)) / 1.64. Clipping the free Newton step would leave the point at
+    # v = y (the skewed coordinate), which is not the foot.
+    s = sheared_plane()
+    pts = np.array([[2.0, 0.3, 0.2], [2.5, 0.1, -0.1], [1.0, 0.5, 0.3]])
+    v_edge = (pts[:2, 1] + 0.8 * (pts[:2, 0] - 1.0)) / 1.64
+    want = np.array([[1.0, v_edge[0]], [1.0, v_edge[1]], [0.6, 0.5]])
+    uv, dist = closest_parameters(s, pts, np.full((3, 2), 0.5))
+    np.testing.assert_allclose(uv, want, atol=1e-12)
+    foot = np.c_[want[:, 0] + 0.8 * want[:, 1], want[:, 1], np.zeros(3)]
+    np.testing.assert_allclose(dist, np.linalg.norm(pts - foot, axis=1), atol=1e-12)
+
+
+def test_foot_point_on_a_sphere_patch_is_the_radial_projection():
+    # a point far off a curved surface: Newton (with the r.S_uu terms) lands on the radial
+    # foot to machine precision where Gauss-Newton alone converges only linearly
+    layout = NetLayout((3, 2), (2, 1))
+    w = np.sqrt(0.5)
+    arc = np.array([[1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    net = np.stack([arc, arc + [0, 0, 1]], axis=1).reshape(-1, 3)
+    s = layout.surface(net, np.array([1, 1, w, w, 1, 1]))
+    angle, height, radius = np.array([0.3, 0.7, 1.2]), np.array([0.2, 0.5, 0.9]), np.array([3.0, 0.2, 2.5])
+    pts = np.c_[radius * np.cos(angle), radius * np.sin(angle), height]
+    _, dist = closest_parameters(s, pts, np.full((3, 2), 0.5), iterations=10)
+    np.testing.assert_allclose(dist, np.abs(radius - 1.0), rtol=0, atol=1e-12)
+
+
+def test_anderson_mixing_solves_a_slow_linear_iteration_much_faster():
+    # x <- A x + b with spectral radius 0.97: plain iteration needs ~700 rounds for 1e-9
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(20, 20)))
+    a = q @ np.diag(np.linspace(0.1, 0.97, 20)) @ q.T
+    b = rng.normal(size=20)
+    fixed = np.linalg.solve(np.eye(20) - a, b)
+    x, mixer = np.zeros((10, 2)), AndersonMixing((False, False), depth=10)
+    for rounds in range(1, 200):
+        x = mixer.next(x, (a @ x.ravel() + b).reshape(10, 2))
+        if np.abs(x.ravel() - fixed).max() < 1e-9:
+            break
+    assert rounds < 60, rounds
+
+
+def test_anderson_mixing_differences_a_closed_direction_across_the_seam():
+    # u is closed: a move from 0.95 to 0.05 is +0.1, not -0.9; v is open and moves plainly
+    mixer = AndersonMixing((True, False))
+    step = mixer.next(np.array([[0.95, 0.5]]), np.array([[0.05, 0.6]]))
+    np.testing.assert_allclose(step, [[1.05, 0.6]])
+    # a constant-rate iteration (u += 0.1 around the seam) is extrapolated exactly
+    step = mixer.next(np.array([[0.05, 0.6]]), np.array([[0.15, 0.6]]))
+    np.testing.assert_allclose(step, [[0.15, 0.6]], atol=1e-12)
