@@ -74,17 +74,20 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
              polish_iterations: int) -> NurbsSurface:
     """The jointly refined surface with its edges back on the data.
 
-    The refinement may let the data retreat from an open direction's edges: the surface
-    then grows past the data's boundary at no cost and overshoots the true one. If the
-    refined surface is exact (the data on it to within ``EXACT``: a noise-free cloud of
-    a shape the net represents, e.g. a conic with the right weights) its only freedom
-    left is where it ends, and it is restricted exactly to the data's parameter extent.
-    Otherwise it is polished again with its weights, the data's edges re-aligned onto
-    the domain's at every round.
+    The refinement may let the data retreat from a bounded direction's edges (see
+    ``NetLayout.bounded``): the surface then grows past the data's boundary at no cost
+    and overshoots the true one. If the refined surface is exact (the data on it to
+    within ``EXACT``: a noise-free cloud of a shape the net represents, e.g. a conic
+    with the right weights) its only freedom left is where it ends, and it is
+    restricted exactly to the data's parameter extent. Otherwise it is polished again
+    with its weights, the data's edges re-aligned onto the domain's at every round. A
+    surface without edges (sphere, torus) is kept as refined.
     """
     surface = layout.surface(control, weights, inner_u, inner_v)
+    if not any(layout.bounded):
+        return surface
     if rms(closest_parameters(surface, points, uv)[1]) <= EXACT:
-        extent = [(0.0, 1.0) if layout.closed[k] else (float(uv[:, k].min()), float(uv[:, k].max()))
+        extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
                   for k in (0, 1)]
         return surface.restricted(*extent)
     return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True)[1]

@@ -28,6 +28,11 @@ class NetLayout:
     poles: bool = False  # collapse the first and last row along v to single points
 
     @property
+    def bounded(self) -> tuple[bool, bool]:
+        """Directions whose two ends are edges of the surface: open and not collapsed to poles."""
+        return (not self.closed[0], not (self.closed[1] or self.poles))
+
+    @property
     def full_shape(self) -> tuple[int, int]:
         return tuple(n + p if c else n for n, p, c in zip(self.size, self.degrees, self.closed))
 

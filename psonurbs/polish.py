@@ -111,8 +111,9 @@ def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8)
     return a + b * along
 
 
-def align_to_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
-    """Map the data's extent in each open direction back onto [0, 1].
+def align_to_domain(uv: np.ndarray, layout) -> np.ndarray:
+    """Map the data's extent in each bounded direction (``layout.bounded``: one with
+    edges, not closed and not ending in poles) back onto [0, 1].
 
     Parameter correction lets the data drift off the domain's edges, and a projection
     on a slightly tilted plane shears them; the surface then extrapolates past the
@@ -122,10 +123,10 @@ def align_to_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
     """
     out = uv.copy()
     for k in (0, 1):
-        if closed[k]:
+        if not layout.bounded[k]:
             continue
         across, along = out[:, k], out[:, 1 - k]
-        if closed[1 - k]:
+        if layout.closed[1 - k]:
             lo, hi = np.full(len(across), across.min()), np.full(len(across), across.max())
         else:
             lo, hi = edge_line(along, across, False), edge_line(along, across, True)
@@ -181,7 +182,7 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
-    uv = align_to_domain(uv, layout.closed)
+    uv = align_to_domain(uv, layout)
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
@@ -195,6 +196,6 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
             uv = best_image
             continue
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        best_image = align_to_domain(new_uv, layout.closed) if realign else new_uv
+        best_image = align_to_domain(new_uv, layout) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
     return best_control, best, best_uv, it

@@ -66,3 +66,22 @@ def test_anderson_mixing_differences_a_closed_direction_across_the_seam():
     # a constant-rate iteration (u += 0.1 around the seam) is extrapolated exactly
     step = mixer.next(np.array([[0.05, 0.6]]), np.array([[0.15, 0.6]]))
     np.testing.assert_allclose(step, [[0.15, 0.6]], atol=1e-12)
+
+
+def test_only_directions_with_edges_are_aligned_to_the_domain():
+    from psonurbs.polish import align_to_domain
+    from psonurbs.topology import layout_for
+
+    rng = np.random.default_rng(5)
+    uv = np.c_[rng.uniform(0.1, 0.9, 400), rng.uniform(0.05, 0.8, 400)]
+    expected = {"open": (True, True), "cylinder": (False, True), "sphere": (False, False),
+                "torus": (False, False)}
+    for topology, bounded in expected.items():
+        layout = layout_for(topology, (8, 6), (3, 3))
+        assert layout.bounded == bounded, topology
+        out = align_to_domain(uv, layout)
+        for k in (0, 1):
+            if bounded[k]:  # the data's extent is stretched onto [0, 1]
+                assert out[:, k].min() < 0.01 and out[:, k].max() > 0.99, (topology, k)
+            else:  # a closed direction, or a sphere's pole-to-pole one: no edge to align
+                np.testing.assert_array_equal(out[:, k], uv[:, k])
