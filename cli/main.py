@@ -8,13 +8,15 @@ live here. Exit codes (also in ``psonurbs fit --help``):
     2    unusable input or config
     3    a fit is above --max-rmse / --max-rmse-rel
     130  interrupted (Ctrl-C)
+    143  terminated (SIGTERM)
 
-When several apply, the most severe wins: 130 > 1 > 2 > 3 > 0.
+When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3 > 0.
 """
 from __future__ import annotations
 
 import math
 import os
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -23,8 +25,8 @@ import click
 
 import psonurbs
 from psonurbs.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
-                            Gate, Job, Row, exit_code, expand_inputs, jobs_from_inputs,
-                            run_batch, write_summary)
+                            EXIT_TERMINATED, Gate, Job, Row, Terminated, exit_code, expand_inputs,
+                            jobs_from_inputs, raise_terminated, run_batch, write_summary)
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.exports import FORMATS, check_formats
@@ -54,6 +56,15 @@ def _finite(ctx, param, value):
     return value
 
 
+def _stopped(stop: KeyboardInterrupt) -> int:
+    """Report a Ctrl-C (130) or a SIGTERM (143) and return its exit code."""
+    if isinstance(stop, Terminated):
+        click.echo("psonurbs: terminated", err=True)
+        return EXIT_TERMINATED
+    click.echo("psonurbs: interrupted", err=True)
+    return EXIT_INTERRUPTED
+
+
 def _run(ctx: click.Context, action):
     """``action()``, with its failures turned into the documented exit codes."""
     try:
@@ -61,9 +72,8 @@ def _run(ctx: click.Context, action):
     except PsonurbsError as e:
         _error(str(e))
         ctx.exit(EXIT_INPUT)
-    except KeyboardInterrupt:
-        click.echo("psonurbs: interrupted", err=True)
-        ctx.exit(EXIT_INTERRUPTED)
+    except KeyboardInterrupt as stop:
+        ctx.exit(_stopped(stop))
     except Exception as e:
         _internal_error(e)
         ctx.exit(EXIT_INTERNAL)
@@ -148,17 +158,17 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
            (its files are written; the others are still fitted)
       130  interrupted (Ctrl-C); no half-written files are left
+      143  terminated (SIGTERM, e.g. a CI timeout); no half-written files
 
-    When several apply, the most severe wins: 130 > 1 > 2 > 3.
+    When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3.
     """
     try:
         code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
                         Gate(max_rmse, max_rmse_rel),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy))
-    except KeyboardInterrupt:
-        click.echo("psonurbs: interrupted", err=True)
-        code = EXIT_INTERRUPTED
+    except KeyboardInterrupt as stop:
+        code = _stopped(stop)
     except Exception as e:  # a bug outside a cloud's fit
         _internal_error(e)
         code = EXIT_INTERNAL
@@ -268,7 +278,7 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
       psonurbs score results/scan.json new_scan.ply --json --max-rmse-rel 1e-3
 
     Exit codes: 0 ok, 1 internal error, 2 unusable surface or cloud, 3 above
-    --max-rmse / --max-rmse-rel, 130 interrupted.
+    --max-rmse / --max-rmse-rel, 130 interrupted, 143 terminated.
     """
     from psonurbs.io import read_cloud
     from psonurbs.scoring import load_surface, score
@@ -314,7 +324,7 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
       STEM_basis.png     the basis functions of both knot vectors
 
     Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,
-    130 interrupted.
+    130 interrupted, 143 terminated.
     """
     from psonurbs.plots import plot_result
 
@@ -351,9 +361,8 @@ def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> N
         click.echo(f"wrote {len(samples)} sample clouds and their configs to {out_dir / 'clouds'}")
         rows = _run_and_report(work, results, (), jobs, Gate(), quiet)
         write_summary(results, rows)
-    except KeyboardInterrupt:
-        click.echo("psonurbs: interrupted", err=True)
-        ctx.exit(EXIT_INTERRUPTED)
+    except KeyboardInterrupt as stop:
+        ctx.exit(_stopped(stop))
     except (OSError, PsonurbsError) as e:
         _error(str(e))
         ctx.exit(EXIT_INPUT)
@@ -368,7 +377,8 @@ def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> N
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point (``psonurbs``)."""
+    """Console-script entry point (``psonurbs``). SIGTERM stops it like Ctrl-C."""
+    signal.signal(signal.SIGTERM, raise_terminated)
     cli.main(args=argv, prog_name="psonurbs")
 
 

@@ -57,6 +57,9 @@ __all__ = [
     "EXIT_INPUT",
     "EXIT_GATE",
     "EXIT_INTERRUPTED",
+    "EXIT_TERMINATED",
+    "Terminated",
+    "raise_terminated",
 ]
 
 EXIT_OK = 0
@@ -64,10 +67,22 @@ EXIT_INTERNAL = 1
 EXIT_INPUT = 2
 EXIT_GATE = 3
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM, as a shell reports a process ended by it
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a CI runner cancelling): stopped and cleaned up
+    exactly like Ctrl-C, reported with its own exit code."""
+
+
+def raise_terminated(signum, frame) -> None:
+    """SIGTERM handler for the main process (workers keep the default and are ended)."""
+    raise Terminated()
+
 
 OK, GATE, BAD_INPUT, INTERNAL = "ok", "gate-exceeded", "bad-input", "internal-error"
 _STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, INTERNAL: EXIT_INTERNAL}
-_SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED]
+_SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
 
 SUMMARY_COLUMNS = ["file", "points", "topology", "net", "rmse", "max_error", "rmse_relative",
                    "max_error_relative", "seconds", "status", "message"]

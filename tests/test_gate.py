@@ -1,7 +1,9 @@
-"""Exit codes through the CLI: 0 ok, 2 bad input, 3 gate exceeded, 130 interrupted.
+"""Exit codes through the CLI: 0 ok, 2 bad input, 3 gate exceeded, 130 interrupted,
+143 terminated.
 
-0/2/3 run in-process with the stand-in library of test_cli; 3 and 130 also with the
-real one, 130 in a subprocess that receives SIGINT in the middle of a long fit.
+0/2/3 run in-process with the stand-in library of test_cli; 3, 130 and 143 also with
+the real one, 130 and 143 in a subprocess that receives SIGINT or SIGTERM in the middle
+of a long fit.
 """
 from __future__ import annotations
 
@@ -32,7 +34,8 @@ def good(tmp_path):
 def test_help_documents_every_exit_code_and_the_precedence():
     text = " ".join(run("fit", "--help").output.split())
     for needle in ["0 every cloud was fitted", "1 internal error", "2 unusable input or config",
-                   "3 gate exceeded", "130 interrupted", "most severe wins: 130 > 1 > 2 > 3",
+                   "3 gate exceeded", "130 interrupted", "143 terminated",
+                   "most severe wins: 143 > 130 > 1 > 2 > 3",
                    "--max-rmse X", "--max-rmse-rel X", "--jobs", "--format"]:
         assert needle in text, needle
 
@@ -121,9 +124,14 @@ def test_real_fit_gate(tmp_path):
                repr(metrics["rmse_relative"] * 0.99)).exit_code == 3
 
 
-# ---- 130: SIGINT in the middle of a fit ----------------------------------------------
+# ---- 130 / 143: SIGINT / SIGTERM in the middle of a fit ------------------------------
 
-def interrupt(args: list[str], out: Path, wait_for: float) -> subprocess.CompletedProcess:
+STOPS = [pytest.param(signal.SIGINT, 130, "interrupted", id="SIGINT"),
+         pytest.param(signal.SIGTERM, 143, "terminated", id="SIGTERM")]
+
+
+def interrupt(args: list[str], out: Path, wait_for: float,
+              signum: int = signal.SIGINT) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen([sys.executable, "-c", "from cli.main import main; main()", *args,
                              "-o", str(out), "-q"], cwd=REPO, env=env,
@@ -131,7 +139,7 @@ def interrupt(args: list[str], out: Path, wait_for: float) -> subprocess.Complet
     try:
         time.sleep(wait_for)
         assert proc.poll() is None, "the fit ended before it could be interrupted"
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         stdout, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
@@ -149,18 +157,20 @@ def complete_stems(out: Path) -> set[str]:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_sigint_exits_130_and_leaves_no_partial_file(tmp_path):
+@pytest.mark.parametrize("signum, code, word", STOPS)
+def test_stop_signal_exits_with_its_code_and_leaves_no_partial_file(tmp_path, signum, code, word):
     pytest.importorskip("psonurbs.fit")
     out = tmp_path / "out"
     result = interrupt(["fit", str(SAMPLES / "franke_noisy.ply"), "--iterations", "100000"],
-                       out, wait_for=4.0)
-    assert result.returncode == 130, result.stderr
-    assert result.stderr == "psonurbs: interrupted\n"
+                       out, wait_for=4.0, signum=signum)
+    assert result.returncode == code, result.stderr
+    assert result.stderr == f"psonurbs: {word}\n"
     assert list(out.iterdir()) == []  # nothing: no outputs, no temporary files, no summary
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_sigint_stops_the_worker_pool(tmp_path):
+@pytest.mark.parametrize("signum, code, word", STOPS)
+def test_stop_signal_stops_the_worker_pool(tmp_path, signum, code, word):
     pytest.importorskip("psonurbs.fit")
     clouds = tmp_path / "clouds"
     clouds.mkdir()
@@ -170,9 +180,9 @@ def test_sigint_stops_the_worker_pool(tmp_path):
     out = tmp_path / "out"
     start = time.perf_counter()
     result = interrupt(["fit", str(clouds), "--iterations", "100000", "--jobs", "2"], out,
-                       wait_for=6.0)
-    assert result.returncode == 130, result.stderr
+                       wait_for=6.0, signum=signum)
+    assert result.returncode == code, result.stderr
     assert time.perf_counter() - start < 40  # stopped, not waited for
-    assert result.stderr.splitlines()[-1] == "psonurbs: interrupted"
+    assert result.stderr.splitlines()[-1] == f"psonurbs: {word}"
     assert not [p for p in out.iterdir() if ".tmp-" in p.name]
     assert complete_stems(out) <= {"a_small"}  # finished clouds are complete, nothing else
