@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
-OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder"]
+OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder", "franke_outliers"]
 CLOSED_CASES = ["seed_sphere169", "cylinder", "sphere_noisy", "torus"]
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}

@@ -154,7 +154,9 @@ class FitConfig:
         or by the plain fit error on the points they were fitted to (false).
     refine: after the polish, refine control points, weights and parameters jointly
         (Levenberg-Marquardt), then polish again.
-    remove_outliers: drop statistical outliers before fitting.
+    remove_outliers: drop statistical outliers (by neighbour distances) before fitting.
+    robust: leave out of the fit the points more than 10 robust standard deviations off
+        it (gross outliers, :mod:`psonurbs.robust`); the metrics still count them.
     """
 
     orders: tuple[int, int] = (3, 3)
@@ -171,6 +173,7 @@ class FitConfig:
     cross_validation: bool = True
     refine: bool = True
     remove_outliers: bool = False
+    robust: bool = True
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -218,7 +221,7 @@ class FitConfig:
         put("weight_bounds", (lo, hi))
         put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
                                    what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
-        for name in ("cross_validation", "refine", "remove_outliers"):
+        for name in ("cross_validation", "refine", "remove_outliers", "robust"):
             if not isinstance(getattr(self, name), bool):
                 raise _fail(name, "true or false", getattr(self, name))
 

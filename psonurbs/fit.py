@@ -22,18 +22,18 @@ from threadpoolctl import threadpool_limits
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .net import NetLayout
 from .nurbs import NurbsSurface
-from .organise import Cloud, organise, subsample
+from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
 from .parametrise import Parametrisation
 from .polish import closest_parameters, polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
+from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers
 from .solve import RegularisedLeastSquares
 from .topology import choose_topology, layout_for, parametrise_for
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 REFINE_GAIN = 0.05  # the joint refinement must lower the RMSE by this share to be kept
-EXACT = 1e-6  # an RMSE (share of the diagonal) at which the data lie on the surface: evaluation precision
 
 
 @dataclass
@@ -77,7 +77,7 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
     The refinement may let the data retreat from a bounded direction's edges (see
     ``NetLayout.bounded``): the surface then grows past the data's boundary at no cost
     and overshoots the true one. If the refined surface is exact (the data on it to
-    within ``EXACT``: a noise-free cloud of a shape the net represents, e.g. a conic
+    within ``RESOLUTION``: a noise-free cloud of a shape the net represents, e.g. a conic
     with the right weights) its only freedom left is where it ends, and it is
     restricted exactly to the data's parameter extent. Otherwise it is polished again
     with its weights, the data's edges re-aligned onto the domain's at every round. A
@@ -86,7 +86,7 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
     surface = layout.surface(control, weights, inner_u, inner_v)
     if not any(layout.bounded):
         return surface
-    if rms(closest_parameters(surface, points, uv)[1]) <= EXACT:
+    if rms(closest_parameters(surface, points, uv)[1]) <= RESOLUTION:
         extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
                   for k in (0, 1)]
         return surface.restricted(*extent)
@@ -96,39 +96,46 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), then the
-    polish and the optional joint refinement."""
+    polish and the optional joint refinement; with ``robust``, on the inliers only
+    (:mod:`psonurbs.robust`: of the classical fit first, of the polished one after)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
-    search = KnotWeightSearch(layout, solver, cloud.points[sample], par.uv[sample], config.cross_validation,
+    keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
+    points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
+    search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
     inner_u, inner_v, weights, smoothing = search.split(swarm.best_position)
     solver = solver.with_smoothing(smoothing)
-    control, surface, uv, steps = polish(layout, solver, cloud.points, par.uv, weights, inner_u, inner_v,
+    control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
                                          config.polish_iterations)
+    if config.robust:
+        keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
+        points, seen = cloud.points[keep], kept_sample(sample, keep)
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, cloud.points[sample], uv[sample], weights,
+    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], weights,
                                                  inner_u, inner_v))
-    control, surface, uv, more = polish(layout, solver, cloud.points, uv, weights, inner_u, inner_v,
+    control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
                                         config.polish_iterations)
     steps += more
     refine_steps, kept = 0, False
     if config.refine:
-        control, weights, uv, refine_steps = refine_jointly(layout, solver, cloud.points, uv, control, weights,
+        control, weights, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, weights,
                                                             inner_u, inner_v, np.log(config.weight_bounds))
-        refined = anchored(layout, solver, cloud.points, uv, control, weights, inner_u, inner_v,
+        refined = anchored(layout, solver, points, uv, control, weights, inner_u, inner_v,
                            config.polish_iterations)
         # kept only for a real gain: on noisy data the extra freedom buys a percent or
         # two of RMSE by fitting the noise, at the price of the true shape
-        kept = (rms(closest_parameters(refined, cloud.points)[1])
-                <= (1.0 - REFINE_GAIN) * rms(closest_parameters(surface, cloud.points)[1]))
+        kept = (rms(closest_parameters(refined, points)[1])
+                <= (1.0 - REFINE_GAIN) * rms(closest_parameters(surface, points)[1]))
         if kept:
             surface = refined
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
-            "swarm": {"points": int(len(sample)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
+            "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical()))},
-            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept)}
+            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept),
+            "outliers": int(len(keep) - keep.sum())}
     return surface, swarm, info
 
 
@@ -183,6 +190,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "points": int(len(points)),
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
+        "outliers": int(info.get("outliers", 0)),
     }
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
@@ -192,6 +200,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     if len(cloud) < layout.n_free:
         notes.append(f"under-determined: {len(cloud)} points for {layout.n_free} control points, "
                      "the smoothness term decides between them")
+    if metrics["outliers"]:
+        notes.append(f"{metrics['outliers']} gross outliers (over {OUTLIER_SIGMAS:g} robust standard deviations "
+                     "off the surface) left out of the fit; rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
     if scores is not None:

@@ -14,6 +14,10 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 
+# a distance, in normalised units (shares of the diagonal), at which a point lies on a
+# surface: the precision to which fitted surfaces are evaluated and scored
+RESOLUTION = 1e-6
+
 
 @dataclass
 class Frame:

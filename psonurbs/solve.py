@@ -57,6 +57,10 @@ class Rows:
             cols, n_cols = column_map[cols], int(column_map.max()) + 1
         return cls(mat.data.reshape(n, m), cols, n_cols, cells)
 
+    def take(self, index: np.ndarray) -> "Rows":
+        """The rows at ``index`` (a mask or indices)."""
+        return Rows(self.values[index], self.columns[index], self.n_columns, self.cells[index])
+
     def rational(self, weights: np.ndarray) -> "Rows":
         """Rows of the rational basis: ``w_c B_c / sum_c w_c B_c`` (weights per column)."""
         wb = self.values * weights[self.columns]
@@ -166,12 +170,17 @@ class RegularisedLeastSquares:
         factor = la.cho_factor(self.normal_matrix(rows.gram()), check_finite=False)
         return la.cho_solve(factor, rows.project(data), check_finite=False)
 
-    def leave_one_out_rmse(self, rows: Rows, data: np.ndarray) -> float:
-        """RMSE of each point's residual under the fit that did not see it (exact LOO)."""
+    def leave_one_out(self, rows: Rows, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Control points (n, 3), and each point's residual (N, 3) under the fit that did
+        not see it (exact LOO: ``e_i / (1 - h_ii)``)."""
         blocks = rows.blocks()
         factor = la.cho_factor(self.normal_matrix(blocks.gram()), check_finite=False)
         control = la.cho_solve(factor, rows.project(data), check_finite=False)
         inverse = la.cho_solve(factor, np.eye(rows.n_columns), check_finite=False)
         leverage = blocks.quadratic_forms(inverse)
-        residual = (rows @ control - data) / np.maximum(1.0 - leverage, 1e-12)[:, None]
+        return control, (rows @ control - data) / np.maximum(1.0 - leverage, 1e-12)[:, None]
+
+    def leave_one_out_rmse(self, rows: Rows, data: np.ndarray) -> float:
+        """RMSE of each point's residual under the fit that did not see it (exact LOO)."""
+        residual = self.leave_one_out(rows, data)[1]
         return float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))

@@ -38,7 +38,7 @@ def test_defaults_match_the_spec():
     assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-6, 1500, 100)
     assert c.tessellation == (101, 101)
     assert c.weight_bounds == (0.2, 5.0)
-    assert (c.min_knot_gap, c.cross_validation, c.remove_outliers) == (0.2, True, False)
+    assert (c.min_knot_gap, c.cross_validation, c.remove_outliers, c.robust) == (0.2, True, False, True)
 
 
 def test_full_file_is_read_with_paper_names(tmp_path):
@@ -72,7 +72,7 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "remove_outliers"]
+                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
