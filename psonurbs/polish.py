@@ -42,7 +42,7 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
     """
     closed = (surface.closed_u, surface.closed_v)
     if uv is None:
-        res = resolution or int(np.clip(8 * max(surface.shape), 64, 256))
+        res = resolution or int(np.clip(32 * max(surface.shape), 128, 512))
         uv = nearest_on_grid(surface, points, res)
     uv = keep_in_domain(uv, closed)
     dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
