@@ -187,10 +187,16 @@ def turn_fraction(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.mod(np.arctan2(y, x) / (2.0 * np.pi), 1.0)
 
 
-def largest_gap(turns: np.ndarray) -> tuple[float, float]:
-    """(size, middle) of the widest empty arc of angles given in turns."""
+STRAY_SHARE = 0.005  # share of a cloud that may be strays when its extent is judged (gaps, poles)
+
+
+def largest_gap(turns: np.ndarray, strays: float = STRAY_SHARE) -> tuple[float, float]:
+    """(size, middle) of the widest arc of angles (given in turns) with at most a share
+    ``strays`` of the points inside: the widest empty arc, a few stray points (a scan's
+    background, a flying pixel) notwithstanding."""
     s = np.sort(turns)
-    gaps = np.diff(np.r_[s, s[0] + 1.0])
+    m = min(int(strays * len(s)) + 1, len(s))
+    gaps = np.r_[s, s[:m] + 1.0][m:m + len(s)] - s
     k = int(np.argmax(gaps))
     return float(gaps[k]), float(np.mod(s[k] + gaps[k] / 2.0, 1.0))
 
@@ -243,7 +249,7 @@ def parametrise_sphere(points: np.ndarray) -> Parametrisation:
     return Parametrisation(np.column_stack([u, v]), {
         "method": "sphere", "centre": [float(c) for c in centre], "radius": radius,
         "axis": [float(c) for c in frame[2]], "angular_gap": gap,
-        "latitude_range": [float(v.min()), float(v.max())]})
+        "latitude_range": [float(q) for q in np.quantile(v, [STRAY_SHARE, 1.0 - STRAY_SHARE])]})
 
 
 def parametrise_torus(points: np.ndarray) -> Parametrisation:

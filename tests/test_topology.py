@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
 from psonurbs.net import NetLayout
-from psonurbs.parametrise import (parametrise_cylinder, parametrise_open, parametrise_sphere,
+from psonurbs.parametrise import (STRAY_SHARE, parametrise_cylinder, parametrise_open, parametrise_sphere,
                                   parametrise_torus)
 from psonurbs.topology import LAYOUTS, choose_topology, layout_for, unsupported
 
@@ -227,12 +227,14 @@ def test_parametrise_sphere_recovers_centre_and_radius():
     par = parametrise_sphere(pts)
     np.testing.assert_allclose(par.info["centre"], [0.3, -1.0, 2.0], atol=1e-9)
     assert par.info["radius"] == pytest.approx(1.3, rel=1e-9)
-    lo, hi = par.info["latitude_range"]
-    assert lo < 0.05 and hi > 0.95
     # v is the polar angle around the axis, from 0 to 1
     axis = np.asarray(par.info["axis"])
     cos_polar = (pts - [0.3, -1.0, 2.0]) @ axis / 1.3
     np.testing.assert_allclose(par.uv[:, 1], np.arccos(-cos_polar) / np.pi, atol=1e-9)
+    # the range the data reach, a share STRAY_SHARE of strays aside at each end
+    lo, hi = par.info["latitude_range"]
+    np.testing.assert_allclose([lo, hi], np.quantile(par.uv[:, 1], [STRAY_SHARE, 1 - STRAY_SHARE]))
+    assert lo < 0.1 and hi > 0.9
 
 
 def test_parametrise_torus_recovers_axis():
@@ -258,6 +260,22 @@ def test_unsupported_sphere_needs_both_poles():
     assert unsupported(parametrise_sphere(sph), sph, "sphere") is None
     cap = sph[(sph - [0.3, -1.0, 2.0])[:, 2] > -0.4]  # the lower part cut away: one pole missing
     assert "poles" in unsupported(parametrise_sphere(cap), cap, "sphere")
+
+
+def test_a_few_strays_neither_close_a_gap_nor_reach_a_pole():
+    # 0.3% stray points (a scan's background) scattered over what the data leave empty
+    rng = np.random.default_rng(11)
+    half = cylinder_cloud(n=2000, arc=np.pi, seed=3)
+    a = rng.uniform(np.pi, 2 * np.pi, 6)
+    strays = np.column_stack([1.7 * np.cos(a) + 1.0, 1.7 * np.sin(a) - 2.0, rng.uniform(0.5, 3.5, 6)])
+    par = parametrise_cylinder(np.vstack([half, strays]))
+    assert par.info["angular_gap"] > 0.4
+    assert "no data" in unsupported(par, np.vstack([half, strays]), "cylinder")
+    sph = sphere_cloud(n=2000, seed=4)
+    cap = sph[(sph - [0.3, -1.0, 2.0])[:, 2] > -0.4]
+    far = np.asarray([0.3, -1.0, 2.0]) + 1.3 * np.array([[0.1, 0.0, -1.0], [0.0, 0.1, -1.0], [-0.1, 0.0, -1.0]])
+    with_strays = np.vstack([cap, far])
+    assert "poles" in unsupported(parametrise_sphere(with_strays), with_strays, "sphere")
 
 
 @pytest.mark.parametrize("expected, cloud", [
