@@ -33,7 +33,6 @@ from .solve import RegularisedLeastSquares
 from .topology import choose_topology, layout_for, parametrise_for
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
-REFINE_GAIN = 0.05  # the joint refinement must lower the RMSE by this share to be kept
 
 
 @dataclass
@@ -67,6 +66,19 @@ def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np
         except np.linalg.LinAlgError:
             errors.append(np.inf)
     return float(grid[int(np.argmin(errors))])
+
+
+def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> bool:
+    """Whether the refinement's drop in the residual sum of squares pays for the weights
+    it frees (Akaike): ``n ln(RSS_before / RSS_after) > 2 n_weights``.
+
+    On noisy data the extra freedom buys a percent or two of RMSE by fitting the noise,
+    at the price of the true shape; on a conic it takes the error to zero.
+    """
+    rss_before, rss_after = float(np.sum(before ** 2)), float(np.sum(after ** 2))
+    if rss_after <= 0.0:
+        return rss_before > 0.0
+    return len(before) * np.log(rss_before / rss_after) > 2.0 * n_weights
 
 
 def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
@@ -106,7 +118,9 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    inner_u, inner_v, weights, smoothing = search.split(swarm.best_position)
+    unseen = np.setdiff1d(np.arange(len(points)), seen)
+    chosen, validation = search.validated(swarm.best_position, points[unseen], uv[unseen])
+    inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
                                          config.polish_iterations)
@@ -125,15 +139,13 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                                                             inner_u, inner_v, np.log(config.weight_bounds))
         refined = anchored(layout, solver, points, uv, control, weights, inner_u, inner_v,
                            config.polish_iterations)
-        # kept only for a real gain: on noisy data the extra freedom buys a percent or
-        # two of RMSE by fitting the noise, at the price of the true shape
-        kept = (rms(closest_parameters(refined, points)[1])
-                <= (1.0 - REFINE_GAIN) * rms(closest_parameters(surface, points)[1]))
+        kept = pays_for_weights(closest_parameters(surface, points)[1], closest_parameters(refined, points)[1],
+                                layout.n_free)
         if kept:
             surface = refined
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
-                      "classical_error": float(search.error(search.classical()))},
+                      "classical_error": float(search.error(search.classical())), **validation},
             "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept),
             "outliers": int(len(keep) - keep.sum())}
     return surface, swarm, info
@@ -194,6 +206,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     }
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
+    for name in info["swarm"].get("held_out_error", {}):
+        info["swarm"]["held_out_error"][name] *= diag
     iterations = np.arange(1, len(swarm.best_history) + 1)
     curve = np.column_stack([iterations, swarm.best_history * diag, swarm.mean_history * diag])
     notes = []

@@ -229,3 +229,37 @@ def test_full_strategy_on_sixteen_points():
     assert best[-1] <= 0.5 * best[0]
     assert res.metrics["swarm_best_error"] == pytest.approx(best[-1], rel=1e-12)
     assert any("under-determined" in n for n in res.notes)
+
+
+def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
+    from psonurbs.fit import pays_for_weights
+
+    rng = np.random.default_rng(0)
+    before = np.abs(rng.normal(0, 1e-3, 5000))
+    # 144 weights for 5000 points: the RSS must drop by more than 1 - exp(-288/5000) = 5.6%
+    assert not pays_for_weights(before, before * np.sqrt(0.95), 144)
+    assert pays_for_weights(before, before * np.sqrt(0.94), 144)
+    assert pays_for_weights(before, np.zeros(5000), 144)  # exact: the conic found
+    assert not pays_for_weights(np.zeros(5000), np.zeros(5000), 144)
+
+
+def test_validation_keeps_the_classical_knots_when_the_best_predicts_unseen_points_worse():
+    from psonurbs.hybrid import KnotWeightSearch
+    from psonurbs.solve import RegularisedLeastSquares
+
+    pts = franke(n=3000, seed=12, noise=0.01)
+    layout = NetLayout((8, 8), (4, 4))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
+    uv = pts[:, :2].copy()  # the franke samples are a height field over [0, 1]^2
+    search = KnotWeightSearch(layout, solver, pts[:1000], uv[:1000], True, 0.2, (0.2, 5.0))
+    classical = search.classical()
+    crowded = classical.copy()
+    cu, _ = layout.inner_counts
+    crowded[:cu] = np.linspace(0.05, 0.25, cu)  # knots crowded on one side, wide spans on the other
+    chosen, info = search.validated(crowded, pts[1000:], uv[1000:])
+    assert info["kept"] == "classical" and np.array_equal(chosen, classical)
+    assert info["held_out_error"]["swarm"] > info["held_out_error"]["classical"]
+    assert info["held_out_points"] == 2000
+    # with no unseen point there is nothing to judge by: the best stands
+    chosen, info = search.validated(crowded, pts[:0], uv[:0])
+    assert np.array_equal(chosen, crowded) and info == {}
