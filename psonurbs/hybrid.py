@@ -79,29 +79,6 @@ class KnotWeightSearch:
     def fitness(self, positions: np.ndarray) -> np.ndarray:
         return np.array([self.error(x) for x in positions])
 
-    def held_out_error(self, x: np.ndarray, points: np.ndarray, uv: np.ndarray) -> float:
-        """RMSE at points the fitness never saw (at their parameters ``uv``) of the fit
-        that the particle ``x`` makes on the swarm's points."""
-        inner_u, inner_v, weights, smoothing = self.split(x)
-        control = self.solver.with_smoothing(smoothing).solve(
-            self.layout.rows(self.uv, weights, inner_u, inner_v), self.points)
-        residual = self.layout.rows(uv, weights, inner_u, inner_v) @ control - points
-        return float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
-
-    def validated(self, best: np.ndarray, points: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, dict]:
-        """The swarm's best, or the classical start if the best does not predict the
-        held-out ``points`` better: among thousands of particles the least leave-one-out
-        error on one sample is an optimistic pick (on noisy data it can be knots and
-        weights tuned to that sample's noise)."""
-        if len(points) == 0:
-            return best, {}
-        classical = self.classical()
-        errors = {"classical": self.held_out_error(classical, points, uv),
-                  "swarm": self.held_out_error(best, points, uv)}
-        kept = "swarm" if errors["swarm"] < errors["classical"] else "classical"
-        return (best if kept == "swarm" else classical), {"held_out_points": int(len(points)),
-                                                         "held_out_error": errors, "kept": kept}
-
     def error(self, x: np.ndarray) -> float:
         inner_u, inner_v, weights, smoothing = self.split(x)
         rows = self.layout.rows(self.uv, weights, inner_u, inner_v)

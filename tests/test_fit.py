@@ -243,7 +243,8 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
     assert not pays_for_weights(np.zeros(5000), np.zeros(5000), 144)
 
 
-def test_validation_keeps_the_classical_knots_when_the_best_predicts_unseen_points_worse():
+def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
+    from psonurbs.fit import validated
     from psonurbs.hybrid import KnotWeightSearch
     from psonurbs.solve import RegularisedLeastSquares
 
@@ -251,15 +252,17 @@ def test_validation_keeps_the_classical_knots_when_the_best_predicts_unseen_poin
     layout = NetLayout((8, 8), (4, 4))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
     uv = pts[:, :2].copy()  # the franke samples are a height field over [0, 1]^2
-    search = KnotWeightSearch(layout, solver, pts[:1000], uv[:1000], True, 0.2, (0.2, 5.0))
+    seen = np.arange(1000)
+    search = KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
     classical = search.classical()
     crowded = classical.copy()
     cu, _ = layout.inner_counts
     crowded[:cu] = np.linspace(0.05, 0.25, cu)  # knots crowded on one side, wide spans on the other
-    chosen, info = search.validated(crowded, pts[1000:], uv[1000:])
+    chosen, info = validated(search, crowded, layout, pts, uv, seen, 20)
     assert info["kept"] == "classical" and np.array_equal(chosen, classical)
     assert info["held_out_error"]["swarm"] > info["held_out_error"]["classical"]
     assert info["held_out_points"] == 2000
-    # with no unseen point there is nothing to judge by: the best stands
-    chosen, info = search.validated(crowded, pts[:0], uv[:0])
-    assert np.array_equal(chosen, crowded) and info == {}
+    # the classical start itself, or no unseen point: nothing to judge, the best stands
+    for best, points in ((classical, pts), (crowded, pts[:1000])):
+        chosen, info = validated(search, best, layout, points, uv, seen, 20)
+        assert np.array_equal(chosen, best) and info == {}
