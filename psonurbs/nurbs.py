@@ -77,9 +77,12 @@ class NurbsSurface:
         """
         w = self.weights.reshape(-1)
         aw = (self.control_points * self.weights[..., None]).reshape(-1, 3)
+        orders = range(3 if second else 2 if first else 1)
+        bu = [design_matrix(u, self.knots_u, self.degree_u, d) for d in orders]
+        bv = [design_matrix(v, self.knots_v, self.degree_v, d) for d in orders]
 
         def spline(du: int, dv: int) -> tuple[np.ndarray, np.ndarray]:
-            t = self.tensor(u, v, du, dv)
+            t = tensor_basis(bu[du], bv[dv])
             return t @ aw, t @ w
 
         a, den = spline(0, 0)
