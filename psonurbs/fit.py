@@ -4,12 +4,15 @@
 of both directions, the weights and the smoothing weight); inside its fitness the
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
-so the swarm cannot win by tuning knots to noise. The best particle is polished
-(parameter correction), the smoothing re-chosen by leave-one-out at the corrected
-parameters and polished again; then, with ``refine``, control points, weights and
-parameters are refined jointly (:mod:`psonurbs.refine`) and polished once more, kept
-only for a real gain. ``strategy: full`` is the paper's own search space (Eq. 10,
-:mod:`psonurbs.paper`): the swarm's best surface is the result.
+so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
+left out first (:mod:`psonurbs.robust`). The best particle is kept only if, polished,
+it is nearer than the classical start to the points the swarm never saw
+(:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
+leave-one-out at the corrected parameters and polished again; then, with ``refine``,
+control points, weights and parameters are refined jointly (:mod:`psonurbs.refine`),
+anchored to the data's edges and kept if the gain pays for the freed weights
+(:func:`pays_for_weights`). ``strategy: full`` is the paper's own search space
+(Eq. 10, :mod:`psonurbs.paper`): the swarm's best surface is the result.
 """
 from __future__ import annotations
 
@@ -214,7 +217,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
                          surface.closed_u, surface.closed_v)
     dist = dist * diag
     input_diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    rmse = float(np.sqrt(np.mean(dist ** 2)))
+    rmse = rms(dist)
     metrics = {
         "rmse": rmse,
         "max_error": float(dist.max()),

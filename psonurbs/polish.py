@@ -18,6 +18,9 @@ from scipy.spatial import cKDTree
 
 from .nurbs import NurbsSurface
 
+LINE_SEARCH_HALVINGS = 8
+PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
+
 
 def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
     out = uv.copy()
@@ -65,9 +68,6 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
             break
     return uv, np.sqrt(dist2)
 
-
-LINE_SEARCH_HALVINGS = 8
-PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
 
 
 def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,

@@ -29,7 +29,7 @@ def test_point_beyond_an_edge_slides_along_it_to_its_foot():
     np.testing.assert_allclose(dist, np.linalg.norm(pts - foot, axis=1), atol=1e-12)
 
 
-def test_foot_point_on_a_sphere_patch_is_the_radial_projection():
+def test_foot_point_far_off_a_cylinder_patch_is_the_radial_projection():
     # a point far off a curved surface: Newton (with the r.S_uu terms) lands on the radial
     # foot to machine precision where Gauss-Newton alone converges only linearly
     layout = NetLayout((3, 2), (2, 1))
