@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     psonurbs = ["psonurbs"]
     if args.source is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(args.source.resolve()), env.get("PYTHONPATH", "")])
-        psonurbs = [sys.executable, "-m", "cli.main"]
+        psonurbs = [sys.executable, str(args.source.resolve() / "cli" / "main.py")]
 
     with tempfile.TemporaryDirectory(prefix="psonurbs-batch-") as tmp:
         tmp = Path(tmp)

@@ -24,12 +24,12 @@ from pathlib import Path
 import click
 
 import psonurbs
-from psonurbs.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
+from psonurbs.run.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                             EXIT_TERMINATED, Gate, Job, Row, Terminated, exit_code, expand_inputs,
                             jobs_from_inputs, raise_terminated, run_batch, write_summary)
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
-from psonurbs.exports import FORMATS, check_formats
+from psonurbs.formats.cad import FORMATS, check_formats
 
 
 def _error(message: str) -> None:
@@ -280,8 +280,8 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
     Exit codes: 0 ok, 1 internal error, 2 unusable surface or cloud, 3 above
     --max-rmse / --max-rmse-rel, 130 interrupted, 143 terminated.
     """
-    from psonurbs.io import read_cloud
-    from psonurbs.scoring import load_surface, score
+    from psonurbs.formats.clouds import read_cloud
+    from psonurbs.run.scoring import load_surface, score
 
     figures = _run(ctx, lambda: score(load_surface(surface_path)[0], read_cloud(cloud)))
     reason = Gate(max_rmse, max_rmse_rel).check(figures)
@@ -326,7 +326,7 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
     Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,
     130 interrupted, 143 terminated.
     """
-    from psonurbs.plots import plot_result
+    from psonurbs.run.plots import plot_result
 
     written, notes = _run(ctx, lambda: plot_result(result, out_dir, cloud))
     for note in notes:
@@ -352,7 +352,7 @@ def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> N
     Exit codes: as `psonurbs fit`.
     """
     from psonurbs.config import load_config
-    from psonurbs.demo import write_samples
+    from psonurbs.run.demo import write_samples
 
     try:
         samples = write_samples(out_dir / "clouds")

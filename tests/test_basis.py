@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from psonurbs.basis import (
+from psonurbs.geometry.basis import (
     clamped_knots,
     design_matrix,
     inner_knot_count,

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from psonurbs.batch import (Gate, Row, exit_code, expand_inputs, jobs_from_inputs,
+from psonurbs.run.batch import (Gate, Row, exit_code, expand_inputs, jobs_from_inputs,
                             render_summary_csv, run_batch, write_summary)
 from psonurbs.config import FitConfig
-from psonurbs.demo import SAMPLES as DEMO_SAMPLES
-from psonurbs.io import render_ply
+from psonurbs.run.demo import SAMPLES as DEMO_SAMPLES
+from psonurbs.formats.clouds import render_ply
 from test_cli import GOOD, fake_fit, ply_bytes, run  # noqa: F401  (fake_fit: a fixture)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -158,7 +158,7 @@ def small_clouds(directory: Path) -> list[Path]:
 
 
 def test_jobs_2_writes_the_same_files_as_jobs_1(tmp_path):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     clouds = tmp_path / "clouds"
     paths = small_clouds(clouds)
     (clouds / "broken.xyz").write_text("1 2 3\nnot a number\n")

@@ -1,6 +1,6 @@
 """The ``psonurbs`` command line: exit codes, messages, and what is (not) written.
 
-Most tests stand in a fake ``psonurbs.fit`` module so that the CLI's own work
+Most tests stand in a fake ``psonurbs.fitting.pipeline`` module so that the CLI's own work
 (reading, reporting, the output contract) is tested apart from the numerics; the
 end-to-end tests at the bottom use the real library and skip until it exists.
 """
@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 import psonurbs
-from cli.main import cli
+from psonurbs.cli.main import cli
 from psonurbs.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -104,9 +104,9 @@ class FakeResult:
 
 @pytest.fixture
 def fake_fit(monkeypatch):
-    """Install a fake ``psonurbs.fit``; returns the list of (n_points, config) it was called with."""
+    """Install a fake ``psonurbs.fitting.pipeline``; returns the list of (n_points, config) it was called with."""
     calls = []
-    module = types.ModuleType("psonurbs.fit")
+    module = types.ModuleType("psonurbs.fitting.pipeline")
 
     def fit_points(points, config, on_iteration=None):
         calls.append((len(points), config))
@@ -118,7 +118,7 @@ def fake_fit(monkeypatch):
 
     module.fit_points = fit_points
     module.behaviour = FakeResult
-    monkeypatch.setitem(sys.modules, "psonurbs.fit", module)
+    monkeypatch.setitem(sys.modules, "psonurbs.fitting.pipeline", module)
     return types.SimpleNamespace(calls=calls, module=module)
 
 
@@ -373,7 +373,7 @@ def test_nan_in_result_is_an_internal_error_and_writes_nothing(tmp_path, fake_fi
 def test_console_script_subprocess_exit_code(tmp_path):
     """The real entry point, in a fresh interpreter: exit status and stderr."""
     missing = tmp_path / "missing.ply"
-    proc = subprocess.run([sys.executable, "-c", "from cli.main import main; main()", "fit",
+    proc = subprocess.run([sys.executable, "-c", "from psonurbs.cli.main import main; main()", "fit",
                            str(missing), "-o", str(tmp_path / "out")],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2
@@ -385,7 +385,7 @@ def test_console_script_subprocess_exit_code(tmp_path):
 
 @pytest.fixture
 def real_fit():
-    pytest.importorskip("psonurbs.fit", reason="the numerical library (psonurbs.fit) is not there yet")
+    pytest.importorskip("psonurbs.fitting.pipeline", reason="the numerical library (psonurbs.fitting.pipeline) is not there yet")
 
 
 def test_real_fit_good_and_bad_together(tmp_path, real_fit):

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from scipy.interpolate import NdBSpline
 
-from psonurbs.basis import clamped_knots, periodic_knots
-from psonurbs.exports import check_formats, render_3dm, render_iges, render_obj_nurbs
+from psonurbs.geometry.basis import clamped_knots, periodic_knots
+from psonurbs.formats.cad import check_formats, render_3dm, render_iges, render_obj_nurbs
 from psonurbs.errors import ConfigError
-from psonurbs.nurbs import NurbsSurface
+from psonurbs.geometry.nurbs import NurbsSurface
 
 
 SAMPLES = Path(__file__).resolve().parents[1] / "data_samples"
@@ -240,12 +240,12 @@ def test_obj_nurbs_block_read_back(kind):
 # ---- through the CLI -------------------------------------------------------------
 
 def test_fit_with_every_format(tmp_path):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     pytest.importorskip("rhino3dm")
     pytest.importorskip("pyiges")
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from psonurbs.cli.main import cli
 
     out = tmp_path / "out"
     result = CliRunner().invoke(cli, ["fit", str(SAMPLES / "quarter_cylinder.ply"), "-o", str(out),
@@ -268,7 +268,7 @@ def test_fit_with_every_format(tmp_path):
 def test_unknown_format_is_a_usage_error(tmp_path):
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from psonurbs.cli.main import cli
 
     result = CliRunner().invoke(cli, ["fit", "x.ply", "-o", str(tmp_path), "--format", "step"])
     assert result.exit_code == 2

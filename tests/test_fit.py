@@ -1,4 +1,4 @@
-"""End-to-end fits (psonurbs.fit.fit_points) against known answers: an exactly
+"""End-to-end fits (psonurbs.fitting.pipeline.fit_points) against known answers: an exactly
 representable quarter cylinder, closed cylinders and spheres, determinism, the swarm
 never worse than its classical start, the paper's full strategy, and the reported
 rmse against an independent dense-tessellation distance."""
@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from psonurbs.config import config_from_dict
-from psonurbs.fit import fit_points
-from psonurbs.net import NetLayout
-from psonurbs.nurbs import NurbsSurface
-from psonurbs.polish import closest_parameters
+from psonurbs.fitting.pipeline import fit_points
+from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.fitting.polish import closest_parameters
 
 S2 = np.sqrt(2.0) / 2.0
 
@@ -162,7 +162,7 @@ def test_swarm_never_worse_than_classical_start(franke_fit):
 
 def dense_distances(s: NurbsSurface, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(nearest-vertex distance on a 400 x 400 grid, the same refined on a 21 x 21
-    sub-grid spanning the two cells around that vertex): independent of psonurbs.polish."""
+    sub-grid spanning the two cells around that vertex): independent of psonurbs.fitting.polish."""
     us, vs = s.parameter_grid(400, 400)
     grid = s.evaluate_grid(us, vs).reshape(-1, 3)
     coarse, k = cKDTree(grid).query(pts)
@@ -232,7 +232,7 @@ def test_full_strategy_on_sixteen_points():
 
 
 def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
-    from psonurbs.fit import pays_for_weights
+    from psonurbs.fitting.pipeline import pays_for_weights
 
     rng = np.random.default_rng(0)
     before = np.abs(rng.normal(0, 1e-3, 5000))
@@ -244,9 +244,9 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
 
 
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
-    from psonurbs.fit import validated
-    from psonurbs.hybrid import KnotWeightSearch
-    from psonurbs.solve import RegularisedLeastSquares
+    from psonurbs.fitting.pipeline import validated
+    from psonurbs.fitting.hybrid import KnotWeightSearch
+    from psonurbs.fitting.solve import RegularisedLeastSquares
 
     pts = franke(n=3000, seed=12, noise=0.01)
     layout = NetLayout((8, 8), (4, 4))

@@ -112,7 +112,7 @@ def test_missing_rhino3dm_is_exit_2_before_fitting(tmp_path, fake_fit, good, mon
 
 
 def test_real_fit_gate(tmp_path):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     args = ["fit", SAMPLES / "seed_patch16.ply", "-c", SAMPLES / "seed_patch16.yaml",
             "--particles", "6", "--iterations", "5", "-q"]
     first = run(*args, "-o", tmp_path / "a")
@@ -133,7 +133,7 @@ STOPS = [pytest.param(signal.SIGINT, 130, "interrupted", id="SIGINT"),
 def interrupt(args: list[str], out: Path, wait_for: float,
               signum: int = signal.SIGINT) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-c", "from cli.main import main; main()", *args,
+    proc = subprocess.Popen([sys.executable, "-c", "from psonurbs.cli.main import main; main()", *args,
                              "-o", str(out), "-q"], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -159,7 +159,7 @@ def complete_stems(out: Path) -> set[str]:
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("signum, code, word", STOPS)
 def test_stop_signal_exits_with_its_code_and_leaves_no_partial_file(tmp_path, signum, code, word):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     out = tmp_path / "out"
     result = interrupt(["fit", str(SAMPLES / "franke_noisy.ply"), "--iterations", "100000"],
                        out, wait_for=4.0, signum=signum)
@@ -171,7 +171,7 @@ def test_stop_signal_exits_with_its_code_and_leaves_no_partial_file(tmp_path, si
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("signum, code, word", STOPS)
 def test_stop_signal_stops_the_worker_pool(tmp_path, signum, code, word):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     clouds = tmp_path / "clouds"
     clouds.mkdir()
     shutil.copy(SAMPLES / "seed_patch16.ply", clouds / "a_small.ply")

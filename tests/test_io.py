@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import psonurbs.io as pio
+import psonurbs.formats.clouds as pio
 from psonurbs.errors import InputError
-from psonurbs.io import (atomic_write, read_cloud, render_csv, render_json, render_obj,
+from psonurbs.formats.clouds import (atomic_write, read_cloud, render_csv, render_json, render_obj,
                          render_ply, write_fit_outputs)
 
 o3d = pytest.importorskip("open3d")

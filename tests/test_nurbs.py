@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline, RegularGridInterpolator
 
-from psonurbs.basis import clamped_knots, design_matrix, periodic_knots
-from psonurbs.nurbs import NurbsSurface, grid_triangles
-from psonurbs.solve import Rows
+from psonurbs.geometry.basis import clamped_knots, design_matrix, periodic_knots
+from psonurbs.geometry.nurbs import NurbsSurface, grid_triangles
+from psonurbs.fitting.solve import Rows
 
 
 def rational_basis(tensor, weights):

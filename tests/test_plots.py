@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from psonurbs.io import render_csv
-from psonurbs.plots import SIZES
+from psonurbs.formats.clouds import render_csv
+from psonurbs.run.plots import SIZES
 from test_cli import ply_bytes, run
 from test_exports import closed_u_surface, open_surface
 
@@ -106,7 +106,7 @@ def test_plot_without_matplotlib_is_exit_2(tmp_path, monkeypatch):
 
 
 def test_demo_fits_the_samples_and_plots(tmp_path):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     out = tmp_path / "demo"
     result = run("demo", out, "-q")
     assert result.exit_code == 0, result.stderr
@@ -121,7 +121,7 @@ def test_demo_fits_the_samples_and_plots(tmp_path):
         assert (out / "clouds" / name).is_file()
     # the clouds are the same every time
     again = tmp_path / "again"
-    from psonurbs.demo import write_samples
+    from psonurbs.run.demo import write_samples
 
     write_samples(again)
     assert (again / "bump.ply").read_bytes() == (out / "clouds" / "bump.ply").read_bytes()

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from psonurbs.net import NetLayout
-from psonurbs.polish import AndersonMixing, closest_parameters
+from psonurbs.geometry.net import NetLayout
+from psonurbs.fitting.polish import AndersonMixing, closest_parameters
 
 
 def sheared_plane():
@@ -69,8 +69,8 @@ def test_anderson_mixing_differences_a_closed_direction_across_the_seam():
 
 
 def test_only_directions_with_edges_are_aligned_to_the_domain():
-    from psonurbs.polish import align_to_domain
-    from psonurbs.topology import layout_for
+    from psonurbs.fitting.polish import align_to_domain
+    from psonurbs.fitting.topology import layout_for
 
     rng = np.random.default_rng(5)
     uv = np.c_[rng.uniform(0.1, 0.9, 400), rng.uniform(0.05, 0.8, 400)]

@@ -5,10 +5,10 @@ import dataclasses
 
 import numpy as np
 
-from psonurbs.fit import fit_points
-from psonurbs.net import NetLayout
-from psonurbs.robust import classical_inliers, inliers, kept_sample
-from psonurbs.solve import RegularisedLeastSquares
+from psonurbs.fitting.pipeline import fit_points
+from psonurbs.geometry.net import NetLayout
+from psonurbs.fitting.robust import classical_inliers, inliers, kept_sample
+from psonurbs.fitting.solve import RegularisedLeastSquares
 from test_fit import config, franke
 
 

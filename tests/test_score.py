@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from psonurbs.errors import InputError
-from psonurbs.nurbs import NurbsSurface
-from psonurbs.scoring import load_surface, score
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.run.scoring import load_surface, score
 from test_cli import ply_bytes, run
 
 REPO = Path(__file__).resolve().parents[1]
@@ -113,7 +113,7 @@ def test_bad_cloud_is_exit_2(tmp_path):
 
 
 def test_score_agrees_with_the_fit(tmp_path):
-    pytest.importorskip("psonurbs.fit")
+    pytest.importorskip("psonurbs.fitting.pipeline")
     out = tmp_path / "out"
     assert run("fit", SAMPLES / "quarter_cylinder.ply", "-c", SAMPLES / "quarter_cylinder.yaml",
                "-o", out, "--particles", "6", "--iterations", "5", "-q").exit_code == 0

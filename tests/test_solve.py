@@ -1,4 +1,4 @@
-"""Regularised least squares (psonurbs.solve) against dense numpy computations:
+"""Regularised least squares (psonurbs.fitting.solve) against dense numpy computations:
 the stacked least-squares solution, an explicit leave-one-out refit, and the
 cell-block Gram / quadratic forms on an open and on a sphere layout."""
 from __future__ import annotations
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from psonurbs.basis import make_knots
-from psonurbs.net import NetLayout
-from psonurbs.solve import RegularisedLeastSquares, Rows
+from psonurbs.geometry.basis import make_knots
+from psonurbs.geometry.net import NetLayout
+from psonurbs.fitting.solve import RegularisedLeastSquares, Rows
 
 LAYOUTS = {
     "open": NetLayout((5, 4), (2, 3)),

@@ -7,10 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
-from psonurbs.net import NetLayout
-from psonurbs.parametrise import (STRAY_SHARE, parametrise_cylinder, parametrise_open, parametrise_sphere,
+from psonurbs.geometry.net import NetLayout
+from psonurbs.fitting.parametrise import (STRAY_SHARE, parametrise_cylinder, parametrise_open, parametrise_sphere,
                                   parametrise_torus)
-from psonurbs.topology import LAYOUTS, choose_topology, layout_for, unsupported
+from psonurbs.fitting.topology import LAYOUTS, choose_topology, layout_for, unsupported
 
 CLOSED = {
     "cylinder": NetLayout((6, 5), (3, 3), (True, False)),

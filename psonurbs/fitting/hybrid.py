@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .basis import random_inner_knots
-from .net import NetLayout
+from psonurbs.geometry.basis import random_inner_knots
+from psonurbs.geometry.net import NetLayout
 from .pso import Polytope
 from .solve import RegularisedLeastSquares
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import InputError
+from psonurbs.errors import InputError
 
 # a distance, in normalised units (shares of the diagonal), at which a point lies on a
 # surface: the precision to which fitted surfaces are evaluated and scored

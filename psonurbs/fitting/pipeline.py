@@ -23,8 +23,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
-from .net import NetLayout
-from .nurbs import NurbsSurface
+from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.nurbs import NurbsSurface
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
 from .parametrise import Parametrisation

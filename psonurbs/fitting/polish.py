@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .nurbs import NurbsSurface
+from psonurbs.geometry.nurbs import NurbsSurface
 
 LINE_SEARCH_HALVINGS = 8
 PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve

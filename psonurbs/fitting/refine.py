@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as la
 
-from .net import NetLayout
+from psonurbs.geometry.net import NetLayout
 from .polish import keep_in_domain
 from .solve import RegularisedLeastSquares, Rows
 

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .net import NetLayout
-from .nurbs import NurbsSurface
+from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.nurbs import NurbsSurface
 from .organise import RESOLUTION
 from .polish import closest_parameters
 from .solve import RegularisedLeastSquares

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .hybrid import KnotWeightSearch
-from .net import NetLayout
+from psonurbs.geometry.net import NetLayout
 from .parametrise import Parametrisation, parametrise
 from .solve import RegularisedLeastSquares
 

@@ -34,8 +34,8 @@ from typing import Iterable
 
 import numpy as np
 
-from .errors import ConfigError
-from .nurbs import NurbsSurface
+from psonurbs.errors import ConfigError
+from psonurbs.geometry.nurbs import NurbsSurface
 
 __all__ = [
     "FORMATS",
@@ -221,7 +221,7 @@ def render_iges(surface: NurbsSurface, name: str = "surface") -> str:
     coord = float(np.max(np.abs(cp))) if cp.size else 1.0
     extent = float(np.linalg.norm(cp.reshape(-1, 3).max(0) - cp.reshape(-1, 3).min(0)))
     resolution = max(extent, 1.0) * 1e-9
-    from . import __version__
+    from psonurbs import __version__
     global_params = [
         "1H,", "1H;",
         _hollerith(name), _hollerith(f"{name}.igs"), _hollerith("psonurbs"),

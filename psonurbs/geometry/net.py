@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .basis import design_matrix, inner_knot_count, make_knots, tensor_basis
 from .nurbs import NurbsSurface
-from .solve import Rows
+from psonurbs.fitting.solve import Rows
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
-from .errors import PsonurbsError
+from psonurbs.errors import PsonurbsError
 
 __all__ = [
     "Job",
@@ -147,7 +147,7 @@ class Gate:
 # ---- inputs --------------------------------------------------------------------
 
 def _is_cloud(path: Path) -> bool:
-    from .io import CLOUD_SUFFIXES
+    from psonurbs.formats.clouds import CLOUD_SUFFIXES
 
     return path.suffix.lower() in CLOUD_SUFFIXES
 
@@ -164,7 +164,7 @@ def expand_inputs(args: Iterable[str | os.PathLike]) -> list[Path | Row]:
     A directory or pattern without clouds gives a ``bad-input`` :class:`Row` in its
     place. A path named twice (directly or through a directory/pattern) is fitted once.
     """
-    from .io import CLOUD_SUFFIXES
+    from psonurbs.formats.clouds import CLOUD_SUFFIXES
 
     items: list[Path | Row] = []
     seen: set[Path] = set()
@@ -225,8 +225,8 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     exception an ``internal-error`` row (with the traceback in ``row.detail``).
     """
     import psonurbs
-    from .exports import render_exports
-    from .io import read_cloud
+    from psonurbs.formats.cad import render_exports
+    from psonurbs.formats.clouds import read_cloud
 
     path = job.path
     row = Row(str(path))
@@ -234,7 +234,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     try:
         points = read_cloud(path)
         row.points = int(len(points))
-        from .fit import fit_points  # imported late: reading needs no numerics
+        from psonurbs.fitting.pipeline import fit_points  # imported late: reading needs no numerics
 
         result = fit_points(points, job.config, on_iteration=on_iteration)
         surface = result.surface.to_dict()
@@ -251,7 +251,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         vertices, triangles = result.surface.tessellate(*job.config.tessellation)
         obj_extra, extra_files = ("", {})
         if formats:
-            from .nurbs import NurbsSurface
+            from psonurbs.geometry.nurbs import NurbsSurface
 
             exact = NurbsSurface.from_dict(surface)
             obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices))
@@ -288,7 +288,7 @@ def _number(x) -> float | None:
 
 def _finish(outcome: FitOutcome, out_dir: Path, gate: Gate) -> Row:
     """In the parent: write a successful fit's files, apply the gate; returns the row."""
-    from .io import write_fit_outputs
+    from psonurbs.formats.clouds import write_fit_outputs
 
     row = outcome.row
     if outcome.outputs is None:
@@ -482,7 +482,7 @@ def render_summary_json(rows: Sequence[Row], gate: Gate = Gate()) -> str:
 
 def write_summary(out_dir: str | os.PathLike, rows: Sequence[Row], gate: Gate = Gate()) -> dict[str, Path]:
     """``summary.csv`` and ``summary.json`` (one row per cloud), each written atomically."""
-    from .io import atomic_write
+    from psonurbs.formats.clouds import atomic_write
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

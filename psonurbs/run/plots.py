@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, InputError
+from psonurbs.errors import ConfigError, InputError
 
 __all__ = ["SIZES", "plot_result", "find_cloud", "read_curve"]
 
@@ -50,7 +50,7 @@ def _figure(kind: str):
 
 
 def _save(fig, path: Path) -> Path:
-    from .io import atomic_write
+    from psonurbs.formats.clouds import atomic_write
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
@@ -179,7 +179,7 @@ def plot_distance(surface, points: np.ndarray, title: str, path: Path) -> Path:
 
 
 def plot_basis(surface, title: str, path: Path) -> Path:
-    from .basis import design_matrix
+    from psonurbs.geometry.basis import design_matrix
 
     fig = _figure("basis")
     directions = [("u", surface.knots_u, surface.degree_u, surface.domain_u, surface.closed_u),
@@ -214,7 +214,7 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
     ``cloud`` defaults to :func:`find_cloud`. Raises :class:`InputError` for an
     unusable JSON or cloud, :class:`ConfigError` without matplotlib.
     """
-    from .io import read_cloud
+    from psonurbs.formats.clouds import read_cloud
     from .scoring import load_surface
 
     _matplotlib()

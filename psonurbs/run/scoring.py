@@ -11,8 +11,8 @@ import os
 
 import numpy as np
 
-from .errors import InputError, existing_file
-from .nurbs import NurbsSurface
+from psonurbs.errors import InputError, existing_file
+from psonurbs.geometry.nurbs import NurbsSurface
 
 __all__ = ["load_surface", "point_distances", "score", "PERCENTILES"]
 
@@ -54,7 +54,7 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
 
 def point_distances(surface: NurbsSurface, points: np.ndarray) -> np.ndarray:
     """Distance of each point to the surface, shape (N,)."""
-    from .polish import closest_parameters
+    from psonurbs.fitting.polish import closest_parameters
 
     points = np.asarray(points, float).reshape(-1, 3)
     if len(points) == 0:
