@@ -11,9 +11,9 @@ import numpy as np
 
 from psonurbs.geometry.basis import random_inner_knots
 from psonurbs.geometry.net import NetLayout
+
 from .pso import Polytope
 from .solve import RegularisedLeastSquares
-
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
 

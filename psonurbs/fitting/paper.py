@@ -12,6 +12,7 @@ import numpy as np
 
 from psonurbs.geometry.basis import random_inner_knots
 from psonurbs.geometry.net import NetLayout
+
 from .pso import Polytope
 
 

@@ -22,13 +22,15 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
+
+from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
 from .parametrise import Parametrisation
-from .polish import closest_parameters, polish
+from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
 from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers

@@ -1,101 +1,12 @@
-"""Parameter correction: move each point's (u, v) to its closest point on the surface.
-
-The foot point of x on S minimises f(u, v) = |S(u, v) - x|^2 / 2 over the domain. From a
-start (the nearest vertex of a dense tessellation, or the previous parameters) Newton
-steps H d = -g are taken for all points at once, with
-
-    g = [S_u.r, S_v.r],   H = [[S_u.S_u + r.S_uu, S_u.S_v + r.S_uv], [., S_v.S_v + r.S_vv]],
-
-r = S - x (Gauss-Newton's H without the r terms where the full H is not positive
-definite). A parameter on an open edge whose descent leads off the domain is held on
-the edge and the step taken in the other one alone (an active set), and a step is
-halved until it brings the point closer. Closed directions wrap.
+"""Parameter correction: least squares alternated with moving each point's (u, v) to its
+foot point (:mod:`psonurbs.geometry.projection`), Anderson-accelerated, with the data's
+edges kept on the domain's.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from psonurbs.geometry.nurbs import NurbsSurface
-
-LINE_SEARCH_HALVINGS = 8
-PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
-
-
-def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
-    out = uv.copy()
-    for k in (0, 1):
-        out[:, k] = np.mod(out[:, k], 1.0) if closed[k] else np.clip(out[:, k], 0.0, 1.0)
-    return out
-
-
-def nearest_on_grid(surface: NurbsSurface, points: np.ndarray, resolution: int) -> np.ndarray:
-    """Parameters of the nearest vertex of a resolution x resolution tessellation."""
-    us, vs = surface.parameter_grid(resolution, resolution)
-    grid = surface.evaluate_grid(us, vs).reshape(-1, 3)
-    _, k = cKDTree(grid).query(points)
-    return np.stack([us[k // resolution], vs[k % resolution]], axis=1)
-
-
-def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray | None = None,
-                       iterations: int = 10, resolution: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Foot-point parameters and distances of ``points`` on ``surface``.
-
-    With ``uv`` None the search starts from a tessellation (global); otherwise from ``uv``.
-    """
-    closed = (surface.closed_u, surface.closed_v)
-    if uv is None:
-        res = resolution or int(np.clip(32 * max(surface.shape), 128, 512))
-        uv = nearest_on_grid(surface, points, res)
-    uv = keep_in_domain(uv, closed)
-    dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
-    active = np.arange(len(points))
-    for _ in range(iterations):
-        step = foot_point_step(surface, points[active], uv[active], closed)
-        moved = np.zeros(len(active), bool)
-        for halving in range(LINE_SEARCH_HALVINGS):
-            todo = np.flatnonzero(~moved)
-            trial = keep_in_domain(uv[active[todo]] + 0.5 ** halving * step[todo], closed)
-            trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[active[todo]]) ** 2, axis=1)
-            better = trial_d2 < dist2[active[todo]]
-            uv[active[todo[better]]], dist2[active[todo[better]]] = trial[better], trial_d2[better]
-            moved[todo[better]] = True
-            if moved.all():
-                break
-        # a point is done once it stops moving or its step falls below PARAMETER_TOLERANCE
-        active = active[moved & (np.abs(step).max(axis=1) > PARAMETER_TOLERANCE)]
-        if len(active) == 0:
-            break
-    return uv, np.sqrt(dist2)
-
-
-
-def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,
-                    closed: tuple[bool, bool]) -> np.ndarray:
-    """One bounded Newton step (du, dv) per point towards its foot point."""
-    s, su, sv, suu, suv, svv = surface.derivatives(uv[:, 0], uv[:, 1], second=True)
-    r = s - points
-    g = np.stack([np.sum(su * r, 1), np.sum(sv * r, 1)], axis=1)
-    gauss = np.stack([np.sum(su * su, 1), np.sum(su * sv, 1), np.sum(sv * sv, 1)], axis=1)
-    newton = gauss + np.stack([np.sum(r * suu, 1), np.sum(r * suv, 1), np.sum(r * svv, 1)], axis=1)
-    convex = (newton[:, 0] > 0) & (newton[:, 0] * newton[:, 2] - newton[:, 1] ** 2 > 0)
-    h = np.where(convex[:, None], newton, gauss)
-    h[:, [0, 2]] += 1e-12 * (h[:, [0]] + h[:, [2]]) + 1e-300
-    # an open edge holds a parameter whose descent -g leaves the domain
-    held = np.zeros_like(g, bool)
-    for k in (0, 1):
-        if not closed[k]:
-            held[:, k] = ((uv[:, k] <= 0.0) & (g[:, k] > 0)) | ((uv[:, k] >= 1.0) & (g[:, k] < 0))
-    step = np.zeros_like(g)
-    both = ~held[:, 0] & ~held[:, 1]
-    det = h[both, 0] * h[both, 2] - h[both, 1] ** 2
-    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-    step[both, 0] = -(h[both, 2] * g[both, 0] - h[both, 1] * g[both, 1]) / det
-    step[both, 1] = -(h[both, 0] * g[both, 1] - h[both, 1] * g[both, 0]) / det
-    only_u, only_v = ~held[:, 0] & held[:, 1], held[:, 0] & ~held[:, 1]
-    step[only_u, 0] = -g[only_u, 0] / h[only_u, 0]
-    step[only_v, 1] = -g[only_v, 1] / h[only_v, 2]
-    return step
+from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
@@ -182,7 +93,7 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
-    uv = align_to_domain(uv, layout)
+    uv = best_image = align_to_domain(uv, layout)
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)

@@ -20,7 +20,7 @@ points are eliminated exactly (Schur complement, as in bundle adjustment):
     d_i = -C_i^-1 (c_i + B_i^T d_net)
 
 Every point's block touches only its knot-span cell's control points, so the sums are
-cell-block Grams (:class:`psonurbs.solve.CellBlocks`) and the net system is solved by
+cell-block Grams (:class:`psonurbs.geometry.rows.CellBlocks`) and the net system is solved by
 Cholesky. Levenberg damping ``mu * mean(diag) * I`` also tames the exact null
 directions of a rational patch (the weights' common scale, their Moebius
 reparametrisation). Log-weights stay inside their bounds; parameters of an open
@@ -32,8 +32,10 @@ import numpy as np
 import scipy.linalg as la
 
 from psonurbs.geometry.net import NetLayout
-from .polish import keep_in_domain
-from .solve import RegularisedLeastSquares, Rows
+from psonurbs.geometry.projection import keep_in_domain
+from psonurbs.geometry.rows import Rows
+
+from .solve import RegularisedLeastSquares
 
 
 class JointProblem:

@@ -21,8 +21,9 @@ import numpy as np
 
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
+
 from .organise import RESOLUTION
-from .polish import closest_parameters
 from .solve import RegularisedLeastSquares
 
 OUTLIER_SIGMAS = 10.0

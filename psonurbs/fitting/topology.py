@@ -17,8 +17,9 @@ from typing import Callable
 
 import numpy as np
 
-from .hybrid import KnotWeightSearch
 from psonurbs.geometry.net import NetLayout
+
+from .hybrid import KnotWeightSearch
 from .parametrise import Parametrisation, parametrise
 from .solve import RegularisedLeastSquares
 

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .basis import design_matrix, inner_knot_count, make_knots, tensor_basis
 from .nurbs import NurbsSurface
-from psonurbs.fitting.solve import Rows
+from .rows import Rows
 
 
 @dataclass(frozen=True)
