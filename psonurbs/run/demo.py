@@ -64,7 +64,7 @@ SAMPLES = (
 
 def write_samples(out_dir: str | os.PathLike, seed: int = 0) -> list[tuple[Path, Path]]:
     """Write ``NAME.ply`` and ``NAME.yaml`` for each sample; returns (cloud, config) paths."""
-    from psonurbs.formats.clouds import atomic_write, render_ply
+    from psonurbs.formats.outputs import atomic_write, render_ply
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -33,8 +33,8 @@ MAX_DRAWN_POINTS = 6000
 
 def _matplotlib():
     try:
-        from matplotlib.figure import Figure
         from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
     except ImportError:
         raise ConfigError("psonurbs plot needs the optional package matplotlib, which is not "
                           "installed: pip install 'psonurbs[plot]'") from None
@@ -50,7 +50,7 @@ def _figure(kind: str):
 
 
 def _save(fig, path: Path) -> Path:
-    from psonurbs.formats.clouds import atomic_write
+    from psonurbs.formats.outputs import atomic_write
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
@@ -215,6 +215,7 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
     unusable JSON or cloud, :class:`ConfigError` without matplotlib.
     """
     from psonurbs.formats.clouds import read_cloud
+
     from .scoring import load_surface
 
     _matplotlib()

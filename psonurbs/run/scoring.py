@@ -54,7 +54,7 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
 
 def point_distances(surface: NurbsSurface, points: np.ndarray) -> np.ndarray:
     """Distance of each point to the surface, shape (N,)."""
-    from psonurbs.fitting.polish import closest_parameters
+    from psonurbs.geometry.projection import closest_parameters
 
     points = np.asarray(points, float).reshape(-1, 3)
     if len(points) == 0:

@@ -1,0 +1,131 @@
+"""What happened to each cloud of a run: statuses, exit codes, the summary files.
+
+Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0),
+``gate-exceeded`` (3), ``bad-input`` (2), ``internal-error`` (1); interrupted runs
+exit with 130 (Ctrl-C) or 143 (SIGTERM). When several apply the most severe wins:
+143 > 130 > 1 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
+``summary.json`` atomically, one row per cloud in the order given.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from .gate import Gate
+
+__all__ = [
+    "Row", "exit_code", "write_summary", "render_summary_csv", "render_summary_json",
+    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "GATE", "BAD_INPUT", "INTERNAL",
+    "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_INTERRUPTED", "EXIT_TERMINATED",
+    "Terminated", "raise_terminated",
+]
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_INPUT = 2
+EXIT_GATE = 3
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM, as a shell reports a process ended by it
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a CI runner cancelling): stopped and cleaned up
+    exactly like Ctrl-C, reported with its own exit code."""
+
+
+def raise_terminated(signum, frame) -> None:
+    """SIGTERM handler for the main process (workers keep the default and are ended)."""
+    raise Terminated()
+
+
+OK, GATE, BAD_INPUT, INTERNAL = "ok", "gate-exceeded", "bad-input", "internal-error"
+_STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, INTERNAL: EXIT_INTERNAL}
+_SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
+
+SUMMARY_COLUMNS = ["file", "points", "topology", "net", "rmse", "max_error", "rmse_relative",
+                   "max_error_relative", "seconds", "status", "message"]
+SUMMARY_NAMES = ("summary.csv", "summary.json")
+
+
+@dataclass
+class Row:
+    """One line of the summary: what happened to one cloud."""
+
+    file: str
+    points: int | None = None
+    topology: str | None = None
+    net: str | None = None  # "NUxNV"
+    rmse: float | None = None
+    max_error: float | None = None
+    rmse_relative: float | None = None
+    max_error_relative: float | None = None
+    seconds: float | None = None
+    status: str = OK
+    message: str = ""
+    notes: list[str] = field(default_factory=list)  # the fit's notes (in message too)
+    detail: str = ""  # traceback of an internal error; never written
+
+    def summary(self) -> dict:
+        """The summary columns; a non-finite number becomes None (JSON null)."""
+        d = asdict(self)
+        return {k: (None if isinstance(d[k], float) and not math.isfinite(d[k]) else d[k])
+                for k in SUMMARY_COLUMNS}
+
+
+def exit_code(rows: Iterable[Row]) -> int:
+    """The most severe status: internal error 1 > bad input 2 > gate exceeded 3 > ok 0."""
+    codes = [_STATUS_EXIT[r.status] for r in rows]
+    return max(codes, key=_SEVERITY.index, default=EXIT_OK)
+
+
+def _cell(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def render_summary_csv(rows: Sequence[Row]) -> str:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(SUMMARY_COLUMNS)
+    for row in rows:
+        d = row.summary()
+        if d["seconds"] is not None:
+            d["seconds"] = round(d["seconds"], 3)
+        writer.writerow([_cell(d[c]) for c in SUMMARY_COLUMNS])
+    return buffer.getvalue()
+
+
+def render_summary_json(rows: Sequence[Row], gate: Gate = Gate()) -> str:
+    import psonurbs
+
+    clouds = []
+    for row in rows:
+        d = row.summary()
+        if d["seconds"] is not None:
+            d["seconds"] = round(d["seconds"], 3)
+        clouds.append(d)
+    counts = {s: sum(r.status == s for r in rows) for s in (OK, GATE, BAD_INPUT, INTERNAL)}
+    document = {"psonurbs_version": psonurbs.__version__, "exit_code": exit_code(rows),
+                "counts": counts, "gate": gate.as_dict(), "clouds": clouds}
+    return json.dumps(document, indent=2, allow_nan=False) + "\n"
+
+
+def write_summary(out_dir: str | os.PathLike, rows: Sequence[Row], gate: Gate = Gate()) -> dict[str, Path]:
+    """``summary.csv`` and ``summary.json`` (one row per cloud), each written atomically."""
+    from psonurbs.formats.outputs import atomic_write
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return {
+        "csv": atomic_write(out_dir / "summary.csv", render_summary_csv(rows)),
+        "json": atomic_write(out_dir / "summary.json", render_summary_json(rows, gate)),
+    }
