@@ -24,12 +24,25 @@ from pathlib import Path
 import click
 
 import psonurbs
-from psonurbs.run.batch import (EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
-                            EXIT_TERMINATED, Gate, Job, Row, Terminated, exit_code, expand_inputs,
-                            jobs_from_inputs, raise_terminated, run_batch, write_summary)
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
+from psonurbs.run.batch import run_batch
+from psonurbs.run.gate import Gate
+from psonurbs.run.inputs import Job, expand_inputs, jobs_from_inputs
+from psonurbs.run.summary import (
+    EXIT_GATE,
+    EXIT_INPUT,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_TERMINATED,
+    Row,
+    Terminated,
+    exit_code,
+    raise_terminated,
+    write_summary,
+)
 
 
 def _error(message: str) -> None:
@@ -79,6 +92,33 @@ def _run(ctx: click.Context, action):
         ctx.exit(EXIT_INTERNAL)
 
 
+def _fitter(ctx: click.Context):
+    """The fitting function: ``None`` (the real pipeline) unless the caller put one in the
+    context object (``cli.main(obj={"fit": ...})``, as the tests do)."""
+    return (ctx.obj or {}).get("fit")
+
+
+# ---- options shared by several commands -------------------------------------------------
+
+def gate_options(what: str):
+    """``--max-rmse`` and ``--max-rmse-rel`` (fit, score)."""
+    def add(command):
+        command = click.option("--max-rmse-rel", type=click.FloatRange(min=0), default=None, callback=_finite,
+                               metavar="X", help=f"Gate: exit 3 if {what} rmse divided by the cloud's "
+                                                 "bounding-box diagonal is above X.")(command)
+        return click.option("--max-rmse", type=click.FloatRange(min=0), default=None, callback=_finite,
+                            metavar="X", help=f"Gate: exit 3 if {what} rmse is above X (cloud units).")(command)
+    return add
+
+
+def jobs_option(help_text: str):
+    return click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
+                        help=help_text)
+
+
+quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(psonurbs.__version__, "--version", prog_name="psonurbs")
 def cli() -> None:
@@ -101,19 +141,14 @@ def cli() -> None:
               help="Override topology.")
 @click.option("--strategy", type=click.Choice(STRATEGIES), default=None,
               help="Override strategy.")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
-              help="Fit clouds in N worker processes (one BLAS thread each); the "
-                   "files are identical to --jobs 1.")
+@jobs_option("Fit clouds in N worker processes (one BLAS thread each); the files are identical "
+             "to --jobs 1.")
 @click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
               help="Also export the exact surface: 3dm (Rhino; needs rhino3dm), iges "
                    "(IGES 5.3 entity 128, STEM.igs), obj-nurbs (a 'cstype rat bspline' "
                    "block in STEM.obj). Repeatable.")
-@click.option("--max-rmse", type=click.FloatRange(min=0), default=None, callback=_finite,
-              metavar="X", help="Gate: exit 3 if a fit's rmse is above X (cloud units).")
-@click.option("--max-rmse-rel", type=click.FloatRange(min=0), default=None, callback=_finite,
-              metavar="X", help="Gate: exit 3 if a fit's rmse divided by the cloud's "
-                                "bounding-box diagonal is above X.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@gate_options("a fit's")
+@quiet_option
 @click.pass_context
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
@@ -164,7 +199,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     """
     try:
         code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
-                        Gate(max_rmse, max_rmse_rel),
+                        Gate(max_rmse, max_rmse_rel), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy))
     except KeyboardInterrupt as stop:
@@ -176,7 +211,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
 
 
 def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, quiet: bool,
-             jobs: int, formats: tuple[str, ...], gate: Gate, overrides: dict) -> int:
+             jobs: int, formats: tuple[str, ...], gate: Gate, fitter, overrides: dict) -> int:
     try:
         config = load_config(config_path).with_overrides(**overrides)
         formats = check_formats(formats)
@@ -189,7 +224,7 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
         _error(f"{out_dir}: cannot create the output directory ({e.strerror or e})")
         return EXIT_INPUT
     work = jobs_from_inputs(expand_inputs(clouds), config)
-    rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet)
+    rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet, fitter)
     code = exit_code(rows)
     try:
         write_summary(out_dir, rows, gate)
@@ -204,7 +239,7 @@ def _progress_enabled(quiet: bool) -> bool:
 
 
 def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jobs: int,
-                    gate: Gate, quiet: bool) -> list[Row]:
+                    gate: Gate, quiet: bool, fitter=None) -> list[Row]:
     """Run the batch with the progress bars; report each cloud as it finishes."""
     from tqdm import tqdm
 
@@ -232,7 +267,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
     try:
         return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
-                         on_row=on_row, on_iteration=on_iteration)
+                         on_row=on_row, on_iteration=on_iteration, fit=fitter)
     finally:
         if swarm_bar is not None:
             swarm_bar.close()
@@ -259,11 +294,7 @@ def _report(row: Row) -> None:
 @click.argument("surface_path", metavar="SURFACE.json", type=click.Path(path_type=Path))
 @click.argument("cloud", metavar="CLOUD", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
-@click.option("--max-rmse", type=click.FloatRange(min=0), default=None, callback=_finite,
-              metavar="X", help="Gate: exit 3 if the rmse is above X (cloud units).")
-@click.option("--max-rmse-rel", type=click.FloatRange(min=0), default=None, callback=_finite,
-              metavar="X", help="Gate: exit 3 if the rmse over the cloud's bounding-box "
-                                "diagonal is above X.")
+@gate_options("the")
 @click.pass_context
 def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: bool,
                   max_rmse: float | None, max_rmse_rel: float | None) -> None:
@@ -338,9 +369,8 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
 
 @cli.command("demo")
 @click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
-              help="Worker processes.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@jobs_option("Worker processes.")
+@quiet_option
 @click.pass_context
 def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> None:
     """Write two sample clouds with their configs to OUT/clouds and fit them to OUT/results.
@@ -359,7 +389,7 @@ def demo_command(ctx: click.Context, out_dir: Path, jobs: int, quiet: bool) -> N
         work = [Job(cloud, load_config(config)) for cloud, config in samples]
         results = out_dir / "results"
         click.echo(f"wrote {len(samples)} sample clouds and their configs to {out_dir / 'clouds'}")
-        rows = _run_and_report(work, results, (), jobs, Gate(), quiet)
+        rows = _run_and_report(work, results, (), jobs, Gate(), quiet, _fitter(ctx))
         write_summary(results, rows)
     except KeyboardInterrupt as stop:
         ctx.exit(_stopped(stop))
