@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import GOOD, ply_bytes, run
 
-from psonurbs.run.batch import (Gate, Row, exit_code, expand_inputs, jobs_from_inputs,
-                            render_summary_csv, run_batch, write_summary)
 from psonurbs.config import FitConfig
+from psonurbs.formats.outputs import render_ply
+from psonurbs.run.batch import run_batch
 from psonurbs.run.demo import SAMPLES as DEMO_SAMPLES
-from psonurbs.formats.clouds import render_ply
-from test_cli import GOOD, fake_fit, ply_bytes, run  # noqa: F401  (fake_fit: a fixture)
+from psonurbs.run.gate import Gate
+from psonurbs.run.inputs import expand_inputs, jobs_from_inputs
+from psonurbs.run.summary import Row, exit_code, render_summary_csv, write_summary
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data_samples"
@@ -64,7 +66,7 @@ def test_cli_takes_a_directory_and_a_quoted_glob(tmp_path, fake_fit):
     touch(scans / "two.ply", ply_bytes(GOOD + 1))
     touch(tmp_path / "more" / "three.ply", ply_bytes(GOOD + 2))
     out = tmp_path / "out"
-    result = run("fit", scans, str(tmp_path / "more" / "*.ply"), "-o", out, "-q")
+    result = fake_fit.run("fit", scans, str(tmp_path / "more" / "*.ply"), "-o", out, "-q")
     assert result.exit_code == 0, result.stderr
     assert [line.split(":")[0] for line in result.stdout.splitlines()] == \
         ["one.ply", "two.ply", "three.ply"]
@@ -78,7 +80,7 @@ def test_summary_rows_for_good_bad_and_gated_clouds(tmp_path, fake_fit):
     good = touch(tmp_path / "good.ply", ply_bytes(GOOD))
     bad = touch(tmp_path / "bad.xyz", b"1 2 3\n4 5\n")
     out = tmp_path / "out"
-    result = run("fit", bad, good, "-o", out, "-q", "--max-rmse", "1e-4")
+    result = fake_fit.run("fit", bad, good, "-o", out, "-q", "--max-rmse", "1e-4")
     assert result.exit_code == 2  # bad input beats the gate
     with open(out / "summary.csv", newline="") as f:
         rows = list(csv.DictReader(f))
@@ -120,7 +122,7 @@ def test_summary_json_has_no_nan(tmp_path):
 
 def test_a_cloud_named_summary_is_refused(tmp_path, fake_fit):
     cloud = touch(tmp_path / "summary.ply", ply_bytes(GOOD))
-    result = run("fit", cloud, "-o", tmp_path / "out", "-q")
+    result = fake_fit.run("fit", cloud, "-o", tmp_path / "out", "-q")
     assert result.exit_code == 2
     assert "would overwrite the run summary" in result.stderr
     assert fake_fit.calls == []

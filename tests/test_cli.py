@@ -1,47 +1,21 @@
 """The ``psonurbs`` command line: exit codes, messages, and what is (not) written.
 
-Most tests stand in a fake ``psonurbs.fitting.pipeline`` module so that the CLI's own work
-(reading, reporting, the output contract) is tested apart from the numerics; the
-end-to-end tests at the bottom use the real library and skip until it exists.
+Most tests pass a stand-in fitter (``fake_fit``, see conftest.py) so that the CLI's own
+work (reading, reporting, the output contract) is tested apart from the numerics; the
+end-to-end tests at the bottom use the real library.
 """
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import types
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
+from conftest import GOOD, REPO, SAMPLES, FakeResult, ply_bytes, run
 
 import psonurbs
-from psonurbs.cli.main import cli
-from psonurbs.errors import InputError
-
-REPO = Path(__file__).resolve().parents[1]
-SAMPLES = REPO / "data_samples"
-
-
-def run(*args: str):
-    try:
-        runner = CliRunner(mix_stderr=False)  # click < 8.2
-    except TypeError:
-        runner = CliRunner()  # click >= 8.2 keeps stderr apart
-    return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
-
-def ply_bytes(points) -> bytes:
-    points = np.ascontiguousarray(points, dtype="<f8").reshape(-1, 3)
-    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(points)}\n"
-            "property double x\nproperty double y\nproperty double z\nend_header\n")
-    return head.encode() + points.tobytes()
-
-
-GOOD = np.array([[x, y, x * y] for x in range(4) for y in range(4)], dtype=float)
 
 
 def bad_clouds(tmp: Path) -> dict[str, tuple[Path, str]]:
@@ -69,57 +43,6 @@ def bad_clouds(tmp: Path) -> dict[str, tuple[Path, str]]:
     out["missing.ply"] = (tmp / "missing.ply", "no such file")
     out["adir.ply"] = (tmp / "adir.ply", "directory has no point cloud files")  # dirs are expanded
     return out
-
-
-# ---- a stand-in for the numerical library ------------------------------------
-
-class FakeSurface:
-    def to_dict(self):
-        return {"degree_u": 1, "degree_v": 1, "knots_u": [0.0, 0.0, 1.0, 1.0],
-                "knots_v": [0.0, 0.0, 1.0, 1.0],
-                "control_points": [[[0.0, 0.0, 0.0], [0.0, 3.0, 0.0]],
-                                   [[3.0, 0.0, 0.0], [3.0, 3.0, 9.0]]],
-                "weights": [[1.0, 1.0], [1.0, 1.0]], "closed_u": False, "closed_v": False}
-
-    def tessellate(self, n_u, n_v):
-        u, v = np.meshgrid(np.linspace(0, 3, n_u), np.linspace(0, 3, n_v), indexing="ij")
-        verts = np.stack([u.ravel(), v.ravel(), (u * v).ravel()], -1)
-        i, j = np.meshgrid(np.arange(n_u - 1), np.arange(n_v - 1), indexing="ij")
-        a = (i * n_v + j).ravel()
-        return verts, np.concatenate([np.stack([a, a + n_v, a + 1], 1),
-                                      np.stack([a + 1, a + n_v, a + n_v + 1], 1)])
-
-
-@dataclass
-class FakeResult:
-    surface: FakeSurface = field(default_factory=FakeSurface)
-    topology: str = "open"
-    metrics: dict = field(default_factory=lambda: {"rmse": 1.234e-4, "max_error": 4.567e-4,
-                                                   "n_points": 16})
-    curve_header: list = field(default_factory=lambda: ["iteration", "best_rmse", "mean_rmse"])
-    curve: np.ndarray = field(default_factory=lambda: np.array([[0, 0.2, 0.3], [1, 0.1, 0.25]]))
-    info: dict = field(default_factory=lambda: {"strategy": "hybrid", "evaluations": 80})
-    notes: list = field(default_factory=lambda: ["16 points for 4 control points"])
-
-
-@pytest.fixture
-def fake_fit(monkeypatch):
-    """Install a fake ``psonurbs.fitting.pipeline``; returns the list of (n_points, config) it was called with."""
-    calls = []
-    module = types.ModuleType("psonurbs.fitting.pipeline")
-
-    def fit_points(points, config, on_iteration=None):
-        calls.append((len(points), config))
-        if len(points) < 10:
-            raise InputError(f"{len(points)} points are too few for orders {config.orders}")
-        for it, best in enumerate([0.2, 0.1]):
-            on_iteration(it, best, best + 0.1)
-        return module.behaviour()
-
-    module.fit_points = fit_points
-    module.behaviour = FakeResult
-    monkeypatch.setitem(sys.modules, "psonurbs.fitting.pipeline", module)
-    return types.SimpleNamespace(calls=calls, module=module)
 
 
 def only_summary(out: Path) -> bool:
@@ -164,7 +87,7 @@ def test_config_error_exits_2_before_fitting(tmp_path, fake_fit):
     cfg.write_text("swarm:\n  particles: -3\n")
     cloud = tmp_path / "good.ply"
     cloud.write_bytes(ply_bytes(GOOD))
-    result = run("fit", cloud, "-c", cfg, "-o", tmp_path / "out")
+    result = fake_fit.run("fit", cloud, "-c", cfg, "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert result.stderr == (f"psonurbs: error: {cfg}: config key 'swarm.particles': "
                              "expected a positive integer, got -3\n")
@@ -182,7 +105,7 @@ def test_config_error_exits_2_before_fitting(tmp_path, fake_fit):
 def test_config_errors_name_the_key(tmp_path, fake_fit, text, needle):
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text(text)
-    result = run("fit", SAMPLES / "seed_patch16.ply", "-c", cfg, "-o", tmp_path / "out")
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-c", cfg, "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert needle in result.stderr and str(cfg) in result.stderr
     assert len(result.stderr.splitlines()) == 1
@@ -190,13 +113,13 @@ def test_config_errors_name_the_key(tmp_path, fake_fit, text, needle):
 
 
 def test_missing_config_file(tmp_path, fake_fit):
-    result = run("fit", SAMPLES / "seed_patch16.ply", "-c", tmp_path / "nope.yaml", "-o", tmp_path)
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-c", tmp_path / "nope.yaml", "-o", tmp_path)
     assert result.exit_code == 2
     assert result.stderr == f"psonurbs: error: {tmp_path / 'nope.yaml'}: config file not found\n"
 
 
 def test_bad_override_names_the_key(tmp_path, fake_fit):
-    result = run("fit", SAMPLES / "seed_patch16.ply", "--particles", "0", "-o", tmp_path / "out")
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "--particles", "0", "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert result.stderr == ("psonurbs: error: command-line options: config key 'swarm.particles': "
                              "expected a positive integer, got 0\n")
@@ -216,7 +139,7 @@ def test_bad_topology_choice(tmp_path):
 def test_bad_cloud(tmp_path, fake_fit, name):
     path, problem = bad_clouds(tmp_path)[name]
     out = tmp_path / "out"
-    result = run("fit", path, "-o", out)
+    result = fake_fit.run("fit", path, "-o", out)
     assert result.exit_code == 2
     lines = result.stderr.splitlines()
     assert len(lines) == 1
@@ -230,7 +153,7 @@ def test_bad_cloud(tmp_path, fake_fit, name):
 
 def test_every_bad_cloud_is_reported(tmp_path, fake_fit):
     clouds = bad_clouds(tmp_path)
-    result = run("fit", *[p for p, _ in clouds.values()], "-o", tmp_path / "out", "-q")
+    result = fake_fit.run("fit", *[p for p, _ in clouds.values()], "-o", tmp_path / "out", "-q")
     assert result.exit_code == 2
     lines = result.stderr.splitlines()
     assert len(lines) == len(clouds)
@@ -242,7 +165,7 @@ def test_every_bad_cloud_is_reported(tmp_path, fake_fit):
 def test_unfittable_cloud_from_the_library(tmp_path, fake_fit):
     cloud = tmp_path / "tiny.xyz"
     cloud.write_text("0 0 0\n1 0 0\n0 1 0\n")
-    result = run("fit", cloud, "-o", tmp_path / "out")
+    result = fake_fit.run("fit", cloud, "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert result.stderr == (f"psonurbs: error: {cloud}: 3 points are too few for "
                              "orders (3, 3)\n")
@@ -256,7 +179,7 @@ def test_same_stem_twice_is_refused(tmp_path, fake_fit):
     second = tmp_path / "a" / "good.xyz"
     np.savetxt(second, GOOD + 1)
     out = tmp_path / "out"
-    result = run("fit", first, second, "-o", out)
+    result = fake_fit.run("fit", first, second, "-o", out)
     assert result.exit_code == 2
     assert result.stderr.startswith(f"psonurbs: error: {second}: has the same name as {first}")
     assert len(fake_fit.calls) == 1
@@ -270,7 +193,7 @@ def test_good_cloud_outputs_and_summary(tmp_path, fake_fit):
     cloud = tmp_path / "good.ply"
     cloud.write_bytes(ply_bytes(GOOD))
     out = tmp_path / "out"
-    result = run("fit", cloud, "-o", out, "--seed", "3", "--iterations", "2")
+    result = fake_fit.run("fit", cloud, "-o", out, "--seed", "3", "--iterations", "2")
     assert result.exit_code == 0, result.stderr
     assert result.stderr == ""  # stderr is not a TTY: no progress bar
     line = result.stdout.strip()
@@ -304,7 +227,7 @@ def test_mixed_good_and_bad_clouds(tmp_path, fake_fit):
     bad = tmp_path / "bad.xyz"
     bad.write_text("1 2 3\n4 5\n")
     out = tmp_path / "out"
-    result = run("fit", bad, good, "-o", out)
+    result = fake_fit.run("fit", bad, good, "-o", out)
     assert result.exit_code == 2
     assert result.stderr.splitlines() == [
         f"psonurbs: error: {bad}: malformed point data at line 2: "
@@ -316,7 +239,7 @@ def test_mixed_good_and_bad_clouds(tmp_path, fake_fit):
 
 def test_outputs_are_deterministic(tmp_path, fake_fit):
     for name in ("a", "b"):
-        assert run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / name, "-q").exit_code == 0
+        assert fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / name, "-q").exit_code == 0
     for f in (tmp_path / "a").iterdir():
         if f.name.startswith("summary."):
             continue  # holds the run times
@@ -327,9 +250,9 @@ def test_internal_error_exits_1_without_traceback(tmp_path, fake_fit, monkeypatc
     def broken():
         raise RuntimeError("boom")
 
-    fake_fit.module.behaviour = broken
+    fake_fit.behaviour = broken
     monkeypatch.delenv("PSONURBS_DEBUG", raising=False)
-    result = run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
     assert result.exit_code == 1
     assert result.stderr.splitlines()[0] == \
         f"psonurbs: internal error: {SAMPLES / 'seed_patch16.ply'}: RuntimeError: boom"
@@ -341,9 +264,9 @@ def test_internal_error_traceback_with_debug(tmp_path, fake_fit, monkeypatch):
     def broken():
         raise RuntimeError("boom")
 
-    fake_fit.module.behaviour = broken
+    fake_fit.behaviour = broken
     monkeypatch.setenv("PSONURBS_DEBUG", "1")
-    result = run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
     assert result.exit_code == 1
     assert "Traceback" in result.stderr and "RuntimeError: boom" in result.stderr
 
@@ -352,8 +275,8 @@ def test_interrupt_exits_130_and_leaves_nothing(tmp_path, fake_fit):
     def interrupted():
         raise KeyboardInterrupt
 
-    fake_fit.module.behaviour = interrupted
-    result = run("fit", SAMPLES / "seed_patch16.ply", SAMPLES / "franke_noisy.ply",
+    fake_fit.behaviour = interrupted
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", SAMPLES / "franke_noisy.ply",
                  "-o", tmp_path / "out")
     assert result.exit_code == 130
     assert result.stderr == "psonurbs: interrupted\n"
@@ -362,9 +285,9 @@ def test_interrupt_exits_130_and_leaves_nothing(tmp_path, fake_fit):
 
 
 def test_nan_in_result_is_an_internal_error_and_writes_nothing(tmp_path, fake_fit):
-    fake_fit.module.behaviour = lambda: FakeResult(metrics={"rmse": float("nan"),
+    fake_fit.behaviour = lambda: FakeResult(metrics={"rmse": float("nan"),
                                                             "max_error": 1.0})
-    result = run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
+    result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-o", tmp_path / "out")
     assert result.exit_code == 1
     assert "seed_patch16.ply: ValueError: fit document is not valid JSON" in result.stderr
     assert only_summary(tmp_path / "out")

@@ -1,7 +1,7 @@
 """CAD exports read back by independent readers.
 
-3DM: rhino3dm (openNURBS's own evaluator). IGES: pyiges's parser, evaluated here with
-scipy's NdBSpline. OBJ: a small parser in this file, evaluated with scipy. Each must
+3DM: rhino3dm (openNURBS's own evaluator). IGES: pyiges's parser, evaluated with the
+scipy reference of conftest.py. OBJ: a small parser in this file, evaluated the same way. Each must
 give the same points as psonurbs's NurbsSurface within 1e-9 of the diagonal, for an
 open rational surface, a polynomial one and one closed (periodic) in u.
 """
@@ -12,42 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.interpolate import NdBSpline
+from conftest import closed_u_surface, open_surface, reference_evaluate
 
-from psonurbs.geometry.basis import clamped_knots, periodic_knots
-from psonurbs.formats.cad import check_formats, render_3dm, render_iges, render_obj_nurbs
 from psonurbs.errors import ConfigError
+from psonurbs.formats.cad import check_formats, render_3dm, render_iges, render_obj_nurbs
 from psonurbs.geometry.nurbs import NurbsSurface
 
-
 SAMPLES = Path(__file__).resolve().parents[1] / "data_samples"
-
-
-def open_surface(polynomial: bool = False) -> NurbsSurface:
-    rng = np.random.default_rng(3)
-    nu, nv, p, q = 6, 5, 3, 2
-    u, v = np.meshgrid(np.linspace(0, 1, nu), np.linspace(0, 1, nv), indexing="ij")
-    cp = np.stack([u, v, 0.3 * np.sin(3 * u) * v + 0.05 * rng.standard_normal(u.shape)], -1)
-    cp = 250.0 * cp + np.array([1000.0, -40.0, 7.0])  # not near the origin, not unit size
-    weights = np.ones((nu, nv)) if polynomial else rng.uniform(0.4, 2.5, (nu, nv))
-    return NurbsSurface(p, q, clamped_knots(nu, p, np.array([0.3, 0.45])),
-                        clamped_knots(nv, q, np.array([0.2, 0.7])), cp, weights)
-
-
-def closed_u_surface() -> NurbsSurface:
-    """A rational tube: periodic in u (the last `degree` rows repeat the first), clamped in v."""
-    rng = np.random.default_rng(5)
-    n, p, q, nv = 6, 2, 2, 4
-    angle = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    ring = np.stack([np.cos(angle), np.sin(angle)], -1) * rng.uniform(0.8, 1.2, (n, 1))
-    rows = np.concatenate([ring, ring[:p]])  # n + p rows, the last p repeat the first
-    height = np.linspace(0, 2, nv)
-    cp = np.concatenate([np.repeat(rows[:, None, :], nv, 1),
-                         np.broadcast_to(height[None, :, None], (n + p, nv, 1))], -1)
-    w_distinct = rng.uniform(0.6, 1.6, (n, nv))
-    weights = np.concatenate([w_distinct, w_distinct[:p]])
-    ku = periodic_knots(n, p, np.array([0.15, 0.3, 0.55, 0.7, 0.9]))
-    return NurbsSurface(p, q, ku, clamped_knots(nv, q), cp, weights, closed_u=True)
 
 
 SURFACES = {"open": open_surface, "polynomial": lambda: open_surface(True), "closed_u": closed_u_surface}
@@ -65,12 +36,8 @@ def sample_params(surface: NurbsSurface, n: int = 23) -> np.ndarray:
     return np.stack([uu.ravel(), vv.ravel()], -1)
 
 
-def scipy_evaluate(ku, kv, p, q, cp, w, uv) -> np.ndarray:
-    """Rational tensor B-spline by scipy alone: NdBSpline on homogeneous coordinates."""
-    homogeneous = np.concatenate([cp * w[..., None], w[..., None]], -1)
-    spline = NdBSpline((np.asarray(ku), np.asarray(kv)), homogeneous, (p, q))
-    h = spline(uv)
-    return h[:, :3] / h[:, 3:]
+def reference_evaluate_uv(ku, kv, p, q, cp, w, uv) -> np.ndarray:
+    return reference_evaluate(ku, kv, p, q, cp, w, uv[:, 0], uv[:, 1])
 
 
 def assert_same_points(surface, points, uv):
@@ -82,7 +49,7 @@ def assert_same_points(surface, points, uv):
 def test_scipy_reference_agrees_with_psonurbs():
     s = open_surface()
     uv = sample_params(s)
-    assert_same_points(s, scipy_evaluate(s.knots_u, s.knots_v, s.degree_u, s.degree_v,
+    assert_same_points(s, reference_evaluate_uv(s.knots_u, s.knots_v, s.degree_u, s.degree_v,
                                          s.control_points, s.weights, uv), uv)
 
 
@@ -160,7 +127,7 @@ def test_iges_read_back_by_pyiges(tmp_path, kind):
     cp = np.asarray(entity.control_points()).reshape(nv, nu, 3).transpose(1, 0, 2)
     assert np.array_equal(w, s.weights) and np.array_equal(cp, s.control_points)
     uv = sample_params(s)
-    assert_same_points(s, scipy_evaluate(entity.knot1, entity.knot2, entity.m1, entity.m2, cp, w, uv), uv)
+    assert_same_points(s, reference_evaluate_uv(entity.knot1, entity.knot2, entity.m1, entity.m2, cp, w, uv), uv)
 
 
 def test_iges_layout_is_fixed_80_columns():
@@ -234,7 +201,7 @@ def test_obj_nurbs_block_read_back(kind):
     assert (u0, u1) == s.domain_u and (v0, v1) == s.domain_v
     assert np.array_equal(cp, s.control_points) and np.array_equal(w, s.weights)
     uv = sample_params(s)
-    assert_same_points(s, scipy_evaluate(ku, kv, p, q, cp, w, uv), uv)
+    assert_same_points(s, reference_evaluate_uv(ku, kv, p, q, cp, w, uv), uv)
 
 
 # ---- through the CLI -------------------------------------------------------------
@@ -262,7 +229,7 @@ def test_fit_with_every_format(tmp_path):
     assert obj.count("\nf ") == 2 * 100 * 100  # the mesh is still there
     p, q, ku, kv, cp, w, _, _ = parse_obj_nurbs(obj)
     uv = sample_params(s)
-    assert_same_points(s, scipy_evaluate(ku, kv, p, q, cp, w, uv), uv)
+    assert_same_points(s, reference_evaluate_uv(ku, kv, p, q, cp, w, uv), uv)
 
 
 def test_unknown_format_is_a_usage_error(tmp_path):

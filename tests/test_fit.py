@@ -8,13 +8,14 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import franke
 from scipy.spatial import cKDTree
 
 from psonurbs.config import config_from_dict
 from psonurbs.fitting.pipeline import fit_points
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
-from psonurbs.fitting.polish import closest_parameters
+from psonurbs.geometry.projection import closest_parameters
 
 S2 = np.sqrt(2.0) / 2.0
 
@@ -133,14 +134,6 @@ def test_sphere_topology_collapses_poles_and_fits():
         assert singular[2] < 1e-3 * singular[0]
 
 
-def franke(n=300, seed=4, noise=0.01):
-    rng = np.random.default_rng(seed)
-    x, y = rng.random((2, n))
-    z = (0.75 * np.exp(-((9 * x - 2) ** 2 + (9 * y - 2) ** 2) / 4) + 0.75 * np.exp(-(9 * x + 1) ** 2 / 49 - (9 * y + 1) / 10)
-         + 0.5 * np.exp(-((9 * x - 7) ** 2 + (9 * y - 3) ** 2) / 4) - 0.2 * np.exp(-(9 * x - 4) ** 2 - (9 * y - 7) ** 2))
-    return np.column_stack([x, y, z + noise * rng.normal(size=n)])
-
-
 @pytest.fixture(scope="module")
 def franke_fit():
     pts = franke()
@@ -244,8 +237,8 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
 
 
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
-    from psonurbs.fitting.pipeline import validated
     from psonurbs.fitting.hybrid import KnotWeightSearch
+    from psonurbs.fitting.pipeline import validated
     from psonurbs.fitting.solve import RegularisedLeastSquares
 
     pts = franke(n=3000, seed=12, noise=0.01)

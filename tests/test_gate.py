@@ -17,8 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-
-from test_cli import GOOD, FakeResult, fake_fit, ply_bytes, run  # noqa: F401  (fake_fit: a fixture)
+from conftest import GOOD, FakeResult, ply_bytes, run
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data_samples"
@@ -42,14 +41,14 @@ def test_help_documents_every_exit_code_and_the_precedence():
 
 def test_exit_0_under_the_bound(tmp_path, fake_fit, good):
     # the stand-in's rmse is 1.234e-4
-    result = run("fit", good, "-o", tmp_path / "out", "--max-rmse", "2e-4")
+    result = fake_fit.run("fit", good, "-o", tmp_path / "out", "--max-rmse", "2e-4")
     assert result.exit_code == 0, result.stderr
     assert result.stderr == ""
 
 
 def test_exit_3_above_max_rmse(tmp_path, fake_fit, good):
     out = tmp_path / "out"
-    result = run("fit", good, "-o", out, "--max-rmse", "1e-4")
+    result = fake_fit.run("fit", good, "-o", out, "--max-rmse", "1e-4")
     assert result.exit_code == 3
     assert result.stderr == f"psonurbs: gate exceeded: {good}: rmse 1.234e-04 > --max-rmse 0.0001\n"
     assert result.stdout.startswith("good.ply: 16 points")
@@ -58,16 +57,16 @@ def test_exit_3_above_max_rmse(tmp_path, fake_fit, good):
 
 
 def test_exit_3_above_max_rmse_rel(tmp_path, fake_fit, good):
-    fake_fit.module.behaviour = lambda: FakeResult(metrics={"rmse": 0.5, "max_error": 1.0,
+    fake_fit.behaviour = lambda: FakeResult(metrics={"rmse": 0.5, "max_error": 1.0,
                                                             "rmse_relative": 0.02})
-    result = run("fit", good, "-o", tmp_path / "out", "--max-rmse-rel", "0.01")
+    result = fake_fit.run("fit", good, "-o", tmp_path / "out", "--max-rmse-rel", "0.01")
     assert result.exit_code == 3
     assert "relative rmse 2.000e-02 > --max-rmse-rel 0.01" in result.stderr
-    assert run("fit", good, "-o", tmp_path / "out", "--max-rmse-rel", "0.03").exit_code == 0
+    assert fake_fit.run("fit", good, "-o", tmp_path / "out", "--max-rmse-rel", "0.03").exit_code == 0
 
 
 def test_exit_2_beats_3(tmp_path, fake_fit, good):
-    result = run("fit", good, tmp_path / "missing.ply", "-o", tmp_path / "out", "--max-rmse", "0")
+    result = fake_fit.run("fit", good, tmp_path / "missing.ply", "-o", tmp_path / "out", "--max-rmse", "0")
     assert result.exit_code == 2
     assert "gate exceeded" in result.stderr and "no such file" in result.stderr
 
@@ -79,15 +78,15 @@ def test_exit_1_beats_2(tmp_path, fake_fit, good):
         calls.append(1)
         raise RuntimeError("boom")
 
-    fake_fit.module.behaviour = sometimes_broken
-    result = run("fit", tmp_path / "missing.ply", good, "-o", tmp_path / "out")
+    fake_fit.behaviour = sometimes_broken
+    result = fake_fit.run("fit", tmp_path / "missing.ply", good, "-o", tmp_path / "out")
     assert result.exit_code == 1
     assert calls == [1]
 
 
 @pytest.mark.parametrize("value", ["-1", "nan", "inf", "abc"])
 def test_bad_gate_value_is_exit_2(tmp_path, fake_fit, good, value):
-    result = run("fit", good, "-o", tmp_path / "out", "--max-rmse", value)
+    result = fake_fit.run("fit", good, "-o", tmp_path / "out", "--max-rmse", value)
     assert result.exit_code == 2
     assert "--max-rmse" in result.stderr
     assert fake_fit.calls == []
@@ -104,7 +103,7 @@ def test_missing_rhino3dm_is_exit_2_before_fitting(tmp_path, fake_fit, good, mon
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_rhino)
-    result = run("fit", good, "-o", tmp_path / "out", "--format", "3dm")
+    result = fake_fit.run("fit", good, "-o", tmp_path / "out", "--format", "3dm")
     assert result.exit_code == 2
     assert result.stderr == ("psonurbs: error: --format 3dm needs the optional package rhino3dm, "
                              "which is not installed: pip install 'psonurbs[cad]'\n")

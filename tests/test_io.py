@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import psonurbs.formats.clouds as pio
+import psonurbs.formats.outputs as pout
 from psonurbs.errors import InputError
-from psonurbs.formats.clouds import (atomic_write, read_cloud, render_csv, render_json, render_obj,
-                         render_ply, write_fit_outputs)
+from psonurbs.formats.clouds import read_cloud
+from psonurbs.formats.outputs import atomic_write, render_csv, render_json, render_obj, render_ply, write_fit_outputs
 
 o3d = pytest.importorskip("open3d")
 
@@ -20,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def ply_bytes(points, fmt="binary_little_endian", dtype="double", faces=None) -> bytes:
     points = np.asarray(points, dtype=float).reshape(-1, 3)
-    head = [f"ply", f"format {fmt} 1.0", f"element vertex {len(points)}"]
+    head = ["ply", f"format {fmt} 1.0", f"element vertex {len(points)}"]
     head += [f"property {dtype} {c}" for c in "xyz"]
     if faces is not None:
         head += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
@@ -279,7 +280,7 @@ def test_render_failure_writes_nothing(tmp_path):
 
 
 def test_write_failure_midway_removes_placed_files(tmp_path, monkeypatch):
-    real = pio.atomic_write
+    real = pout.atomic_write
     calls = []
 
     def flaky(path, data):
@@ -288,7 +289,7 @@ def test_write_failure_midway_removes_placed_files(tmp_path, monkeypatch):
             raise KeyboardInterrupt  # Ctrl-C while writing the third file
         return real(path, data)
 
-    monkeypatch.setattr(pio, "atomic_write", flaky)
+    monkeypatch.setattr(pout, "atomic_write", flaky)
     with pytest.raises(KeyboardInterrupt):
         write_sample(tmp_path)
     assert calls == ["s.obj", "s.ply", "s_error.csv"]

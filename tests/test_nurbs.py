@@ -6,11 +6,12 @@ import json
 
 import numpy as np
 import pytest
-from scipy.interpolate import BSpline, RegularGridInterpolator
+from conftest import random_surface, reference_basis, reference_points
+from scipy.interpolate import RegularGridInterpolator
 
 from psonurbs.geometry.basis import clamped_knots, design_matrix, periodic_knots
 from psonurbs.geometry.nurbs import NurbsSurface, grid_triangles
-from psonurbs.fitting.solve import Rows
+from psonurbs.geometry.rows import Rows
 
 
 def rational_basis(tensor, weights):
@@ -42,58 +43,6 @@ QUARTER_KNOTS = [0, 0, 0, 1, 1, 1]
 CIRCLE_PTS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1), (1, 0)]
 CIRCLE_W = [1, S2, 1, S2, 1, S2, 1, S2, 1]
 CIRCLE_KNOTS = [0, 0, 0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1, 1, 1]
-
-
-def random_surface(seed, pu=3, pv=2, nu=6, nv=5, rational=True, domain_u=(0.0, 1.0)):
-    rng = np.random.default_rng(seed)
-    iu = np.sort(rng.uniform(0.1, 0.9, nu - pu - 1))
-    iv = np.sort(rng.uniform(0.1, 0.9, nv - pv - 1))
-    a, b = domain_u
-    tu = a + (b - a) * clamped_knots(nu, pu, iu)
-    tv = clamped_knots(nv, pv, iv)
-    cp = rng.normal(size=(nu, nv, 3))
-    w = rng.uniform(0.3, 3.0, size=(nu, nv)) if rational else np.ones((nu, nv))
-    return NurbsSurface(pu, pv, tu, tv, cp, w)
-
-
-def scipy_basis(x, t, p, nu=0):
-    """All basis functions (columns) at x, from scipy's BSpline with unit coefficients."""
-    n = len(t) - p - 1
-    spl = BSpline(np.asarray(t, float), np.eye(n), p)
-    if nu:
-        spl = spl.derivative(nu)
-    return spl(np.asarray(x, float))
-
-
-def reference_eval(surf, u, v):
-    """S(u, v) by the explicit double sum over i, j (independent of psonurbs)."""
-    Nu = scipy_basis(u, surf.knots_u, surf.degree_u)
-    Nv = scipy_basis(v, surf.knots_v, surf.degree_v)
-    nu, nv = surf.shape
-    num = np.zeros((len(u), 3))
-    den = np.zeros(len(u))
-    for i in range(nu):
-        for j in range(nv):
-            wij = surf.weights[i, j] * Nu[:, i] * Nv[:, j]
-            num += wij[:, None] * surf.control_points[i, j][None, :]
-            den += wij
-    return num / den[:, None]
-
-
-def reference_partials(surf, u, v):
-    """(S_u, S_v) by the quotient rule on explicit double sums (independent of psonurbs)."""
-    Nu, dNu = scipy_basis(u, surf.knots_u, surf.degree_u), scipy_basis(u, surf.knots_u, surf.degree_u, 1)
-    Nv, dNv = scipy_basis(v, surf.knots_v, surf.degree_v), scipy_basis(v, surf.knots_v, surf.degree_v, 1)
-    W = surf.weights
-    P = surf.control_points
-    A = np.einsum("ri,rj,ij,ijk->rk", Nu, Nv, W, P)
-    w = np.einsum("ri,rj,ij->r", Nu, Nv, W)
-    Au = np.einsum("ri,rj,ij,ijk->rk", dNu, Nv, W, P)
-    wu = np.einsum("ri,rj,ij->r", dNu, Nv, W)
-    Av = np.einsum("ri,rj,ij,ijk->rk", Nu, dNv, W, P)
-    wv = np.einsum("ri,rj,ij->r", Nu, dNv, W)
-    S = A / w[:, None]
-    return (Au - wu[:, None] * S) / w[:, None], (Av - wv[:, None] * S) / w[:, None]
 
 
 # ---------------------------------------------------------------------------
@@ -177,7 +126,7 @@ def test_evaluate_matches_explicit_double_sum(seed, pu, pv, nu, nv):
     u = np.concatenate([u, rng.uniform(0, 1, nv + 1 - pv)])
     v = np.concatenate([v, surf.knots_v[pv:nv + 1]])  # every knot of each direction
     got = surf.evaluate(u, v)
-    ref = reference_eval(surf, u, v)
+    ref = reference_points(surf, u, v)
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.abs(surf.control_points).max())
     # corners of a clamped surface are the corner control points
     np.testing.assert_allclose(got[:4], surf.control_points[[0, 0, -1, -1], [0, -1, 0, -1]],
@@ -190,7 +139,7 @@ def test_evaluate_on_a_non_unit_domain():
     rng = np.random.default_rng(4)
     u = np.concatenate([[2.0, 5.0], rng.uniform(2, 5, 100)])
     v = np.concatenate([[0.0, 1.0], rng.uniform(0, 1, 100)])
-    np.testing.assert_allclose(surf.evaluate(u, v), reference_eval(surf, u, v), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(surf.evaluate(u, v), reference_points(surf, u, v), rtol=0, atol=1e-12)
 
 
 def test_evaluate_grid_layout():
@@ -201,7 +150,7 @@ def test_evaluate_grid_layout():
     assert g.shape == (3, 4, 3)
     for a, uu in enumerate(us):
         for b, vv in enumerate(vs):
-            np.testing.assert_allclose(g[a, b], reference_eval(surf, np.array([uu]), np.array([vv]))[0],
+            np.testing.assert_allclose(g[a, b], reference_points(surf, np.array([uu]), np.array([vv]))[0],
                                        rtol=0, atol=1e-13)
 
 
@@ -263,7 +212,7 @@ def test_partials_match_independent_quotient_rule():
     u = np.concatenate([[0, 1, 0, 1], rng.uniform(0, 1, 200)])
     v = np.concatenate([[0, 0, 1, 1], rng.uniform(0, 1, 200)])
     _, su, sv = surf.derivatives(u, v)
-    ru, rv = reference_partials(surf, u, v)
+    ru, rv = reference_points(surf, u, v, (1, 0)), reference_points(surf, u, v, (0, 1))
     scale = max(np.abs(ru).max(), np.abs(rv).max())
     np.testing.assert_allclose(su, ru, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(sv, rv, rtol=0, atol=1e-12 * scale)
@@ -296,8 +245,8 @@ def test_uniform_weights_are_invisible():
     a, b = base.evaluate(u, v), heavy.evaluate(u, v)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-14 * np.abs(a).max())
     # and both equal the plain (non-rational) tensor-product B-spline
-    Nu = scipy_basis(u, base.knots_u, base.degree_u)
-    Nv = scipy_basis(v, base.knots_v, base.degree_v)
+    Nu = reference_basis(u, base.knots_u, base.degree_u)
+    Nv = reference_basis(v, base.knots_v, base.degree_v)
     plain = np.einsum("ri,rj,ijk->rk", Nu, Nv, base.control_points)
     np.testing.assert_allclose(a, plain, rtol=0, atol=1e-13)
     for x, y in zip(base.derivatives(u, v), heavy.derivatives(u, v)):
@@ -354,7 +303,7 @@ def test_tessellate_counts_indices_and_corners(n_u, n_v):
     (u0, u1), (v0, v1) = surf.domain_u, surf.domain_v
     assert (u0, u1, v0, v1) == (2.0, 5.0, 0.0, 1.0)
     corner_uv = np.array([[u0, v0], [u0, v1], [u1, v0], [u1, v1]])
-    expected = reference_eval(surf, corner_uv[:, 0], corner_uv[:, 1])
+    expected = reference_points(surf, corner_uv[:, 0], corner_uv[:, 1])
     got = verts[[0, n_v - 1, (n_u - 1) * n_v, n_u * n_v - 1]]
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-13)
     # and those corners are the corner control points of the clamped net
@@ -363,7 +312,7 @@ def test_tessellate_counts_indices_and_corners(n_u, n_v):
     a, b = n_u // 2, n_v - 2
     uu = u0 + (u1 - u0) * a / (n_u - 1)
     vv = v0 + (v1 - v0) * b / (n_v - 1)
-    np.testing.assert_allclose(verts[a * n_v + b], reference_eval(surf, np.array([uu]), np.array([vv]))[0],
+    np.testing.assert_allclose(verts[a * n_v + b], reference_points(surf, np.array([uu]), np.array([vv]))[0],
                                rtol=0, atol=1e-12)
 
 
@@ -413,7 +362,7 @@ def test_closed_surface_has_no_seam():
     np.testing.assert_allclose(sv0, sv1, rtol=0, atol=1e-9 * np.abs(sv0).max())
     u = np.random.default_rng(3).uniform(0, 1, 100)
     vv = np.random.default_rng(4).uniform(0, 1, 100)
-    np.testing.assert_allclose(surf.evaluate(u, vv), reference_eval(surf, u, vv), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(surf.evaluate(u, vv), reference_points(surf, u, vv), rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("make", [lambda: random_surface(41), closed_surface,
@@ -497,8 +446,8 @@ def test_rational_basis_times_net_equals_evaluate(make):
     np.testing.assert_allclose(Rd.sum(axis=1), 1.0, rtol=0, atol=1e-13)
     assert Rd.min() >= 0
     # independent: R[r, i*nv+j] = w_ij N_i M_j / sum_kl w_kl N_k M_l
-    Nu = scipy_basis(u, surf.knots_u, surf.degree_u)
-    Nv = scipy_basis(v, surf.knots_v, surf.degree_v)
+    Nu = reference_basis(u, surf.knots_u, surf.degree_u)
+    Nv = reference_basis(v, surf.knots_v, surf.degree_v)
     num = np.einsum("ri,rj,ij->rij", Nu, Nv, surf.weights).reshape(len(u), -1)
     np.testing.assert_allclose(Rd, num / num.sum(axis=1, keepdims=True), rtol=0, atol=1e-14)
 

@@ -7,11 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import closed_u_surface, open_surface, ply_bytes, run
 
-from psonurbs.formats.clouds import render_csv
+from psonurbs.formats.outputs import render_csv
 from psonurbs.run.plots import SIZES
-from test_cli import ply_bytes, run
-from test_exports import closed_u_surface, open_surface
 
 matplotlib = pytest.importorskip("matplotlib")
 from matplotlib.image import imread  # noqa: E402

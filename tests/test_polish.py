@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from psonurbs.fitting.polish import AndersonMixing
 from psonurbs.geometry.net import NetLayout
-from psonurbs.fitting.polish import AndersonMixing, closest_parameters
+from psonurbs.geometry.projection import closest_parameters
 
 
 def sheared_plane():

@@ -4,19 +4,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from conftest import franke, franke_z
+from test_fit import config
 
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.geometry.net import NetLayout
 from psonurbs.fitting.robust import classical_inliers, inliers, kept_sample
 from psonurbs.fitting.solve import RegularisedLeastSquares
-from test_fit import config, franke
-
-
-def franke_z(x, y):
-    return (0.75 * np.exp(-((9 * x - 2) ** 2 + (9 * y - 2) ** 2) / 4)
-            + 0.75 * np.exp(-(9 * x + 1) ** 2 / 49 - (9 * y + 1) / 10)
-            + 0.5 * np.exp(-((9 * x - 7) ** 2 + (9 * y - 3) ** 2) / 4)
-            - 0.2 * np.exp(-(9 * x - 4) ** 2 - (9 * y - 7) ** 2))
+from psonurbs.geometry.net import NetLayout
 
 
 def test_normal_residuals_are_never_rejected_and_junk_is():

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ply_bytes, run
 
 from psonurbs.errors import InputError
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.run.scoring import load_surface, score
-from test_cli import ply_bytes, run
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data_samples"

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from psonurbs.geometry.basis import make_knots
+from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout
-from psonurbs.fitting.solve import RegularisedLeastSquares, Rows
+from psonurbs.geometry.rows import Rows
 
 LAYOUTS = {
     "open": NetLayout((5, 4), (2, 3)),

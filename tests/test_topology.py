@@ -7,10 +7,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
-from psonurbs.geometry.net import NetLayout
-from psonurbs.fitting.parametrise import (STRAY_SHARE, parametrise_cylinder, parametrise_open, parametrise_sphere,
-                                  parametrise_torus)
+from psonurbs.fitting.parametrise import (
+    STRAY_SHARE,
+    parametrise_cylinder,
+    parametrise_open,
+    parametrise_sphere,
+    parametrise_torus,
+)
 from psonurbs.fitting.topology import LAYOUTS, choose_topology, layout_for, unsupported
+from psonurbs.geometry.net import NetLayout
 
 CLOSED = {
     "cylinder": NetLayout((6, 5), (3, 3), (True, False)),
