@@ -156,7 +156,7 @@ class FitConfig:
         (Levenberg-Marquardt), then polish again.
     remove_outliers: drop statistical outliers (by neighbour distances) before fitting.
     robust: leave out of the fit the points more than 10 robust standard deviations off
-        it (gross outliers, :mod:`psonurbs.robust`); the metrics still count them.
+        it (gross outliers, :mod:`psonurbs.fitting.robust`); the metrics still count them.
     """
 
     orders: tuple[int, int] = (3, 3)

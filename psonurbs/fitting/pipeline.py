@@ -5,14 +5,14 @@ of both directions, the weights and the smoothing weight); inside its fitness th
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-left out first (:mod:`psonurbs.robust`). The best particle is kept only if, polished,
+left out first (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
 it is nearer than the classical start to the points the swarm never saw
 (:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
 leave-one-out at the corrected parameters and polished again; then, with ``refine``,
-control points, weights and parameters are refined jointly (:mod:`psonurbs.refine`),
+control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.refine`),
 anchored to the data's edges and kept if the gain pays for the freed weights
 (:func:`pays_for_weights`). ``strategy: full`` is the paper's own search space
-(Eq. 10, :mod:`psonurbs.paper`): the swarm's best surface is the result.
+(Eq. 10, :mod:`psonurbs.fitting.paper`): the swarm's best surface is the result.
 """
 from __future__ import annotations
 
@@ -137,7 +137,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), then the
     polish and the optional joint refinement; with ``robust``, on the inliers only
-    (:mod:`psonurbs.robust`: of the classical fit first, of the polished one after)."""
+    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
     points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)

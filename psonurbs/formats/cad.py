@@ -1,7 +1,7 @@
 """CAD exports of a fitted surface: Rhino 3DM, IGES 5.3 (entity 128), OBJ free-form.
 
-Each renderer takes a :class:`~psonurbs.nurbs.NurbsSurface` and returns the file's
-content (``str`` or ``bytes``); writing is left to :func:`psonurbs.io.write_fit_outputs`,
+Each renderer takes a :class:`~psonurbs.geometry.nurbs.NurbsSurface` and returns the file's
+content (``str`` or ``bytes``); writing is left to :func:`psonurbs.formats.outputs.write_fit_outputs`,
 so the exports are atomic and all-or-nothing with the other outputs of a fit.
 
 All three carry the surface exactly: the full net, the weights and the knot vectors,

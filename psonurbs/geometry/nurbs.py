@@ -7,7 +7,7 @@ A NURBS surface of degrees (p, q) with control net P_ij and weights w_ij is
 evaluated on the domain [t_p, t_{-p-1}] x [s_q, s_{-q-1}]. The net is stored whole:
 a closed direction repeats its first ``degree`` rows at the end and carries an
 unclamped periodic knot vector, so that any standard evaluator draws the closed
-surface (see :mod:`psonurbs.basis`).
+surface (see :mod:`psonurbs.geometry.basis`).
 """
 from __future__ import annotations
 

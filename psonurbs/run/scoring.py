@@ -1,7 +1,7 @@
 """Distances from a point cloud to a saved surface (``psonurbs score``).
 
 The distance of a point is the distance to its closest point on the surface, found by
-:func:`psonurbs.polish.closest_parameters` (a global search on a tessellation, then
+:func:`psonurbs.geometry.projection.closest_parameters` (a global search on a tessellation, then
 Newton steps), the same projection the fitter uses for its own metrics.
 """
 from __future__ import annotations
