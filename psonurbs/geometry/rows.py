@@ -93,13 +93,12 @@ class Rows:
 class CellBlocks:
     """The rows grouped by cell into zero-padded dense blocks, taken a batch at a time.
 
-    The rows of one cell are cut into blocks of at most ``height = min(most rows of a
-    cell, BLOCK_HEIGHT)`` rows (a cell's last block zero-padded), so the padded rows
-    number at most N + cells x height: a dense cell never inflates the others. The
-    blocks are processed in batches (``batches``: slices of blocks) of at most about
-    ``ROW_CHUNK`` rows, so the work arrays have a chunk's size whatever N. With at most
-    ``BLOCK_HEIGHT`` rows in every cell and few enough rows there is one block per cell
-    and one batch.
+    While one block per cell, padded to the most rows of a cell, fits in a batch of
+    ``ROW_CHUNK`` rows, that is the layout (one batch). Otherwise the rows of a cell are
+    cut into blocks of ``height = BLOCK_HEIGHT`` rows (a cell's last block zero-padded),
+    so the padded rows number at most N + cells x height (a dense cell never inflates
+    the others), and the blocks are processed in batches (``batches``: slices of
+    blocks) of about ``ROW_CHUNK`` rows: the work arrays have a chunk's size whatever N.
 
     Any per-row quantity (N, ...) is laid out like the rows by :meth:`pad`, and dense
     per-block products (blocks, m, m) are added at their columns by :meth:`place`.
@@ -112,7 +111,9 @@ class CellBlocks:
         sorted_cells = rows.cells[self.order]
         starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]]) if n_rows else np.zeros(0, int)
         counts = np.diff(np.r_[starts, n_rows])
-        self.height = int(min(counts.max(initial=0), BLOCK_HEIGHT)) or 1
+        most = int(counts.max(initial=0)) or 1
+        # one block per cell while all of them fit in a batch; else blocks of BLOCK_HEIGHT rows
+        self.height = most if len(counts) * (most + m) <= ROW_CHUNK else min(most, BLOCK_HEIGHT)
         blocks_of_cell = -(-counts // self.height)
         first_block = np.cumsum(blocks_of_cell) - blocks_of_cell
         rank = np.arange(n_rows) - np.repeat(starts, counts)  # of a sorted row within its cell
