@@ -5,7 +5,7 @@ import numpy as np
 
 from psonurbs.fitting.polish import AndersonMixing
 from psonurbs.geometry.net import NetLayout
-from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.projection import GridStart, closest_parameters
 
 
 def sheared_plane():
@@ -42,6 +42,29 @@ def test_foot_point_far_off_a_cylinder_patch_is_the_radial_projection():
     pts = np.c_[radius * np.cos(angle), radius * np.sin(angle), height]
     _, dist = closest_parameters(s, pts, np.full((3, 2), 0.5), iterations=10)
     np.testing.assert_allclose(dist, np.abs(radius - 1.0), rtol=0, atol=1e-12)
+
+
+def test_global_start_is_much_nearer_the_foot_point_than_the_nearest_vertex():
+    """On a wavy patch, points off it by up to 3% of its size: the start (the nearest
+    vertex moved on the grid's tangent plane) is within a tenth of the grid spacing of
+    the foot point where the vertex itself is up to half a spacing off."""
+    layout = NetLayout((6, 6), (3, 3))
+    i, j = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6), indexing="ij")
+    net = np.stack([i, j, 0.1 * np.sin(5 * i) * np.cos(4 * j)], -1).reshape(-1, 3)
+    surface = layout.surface(net, np.ones(36))
+    rng = np.random.default_rng(0)
+    foot = rng.uniform(0.05, 0.95, (400, 2))
+    s, su, sv = surface.derivatives(foot[:, 0], foot[:, 1])
+    normal = np.cross(su, sv)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    points = s + rng.uniform(-0.03, 0.03, (400, 1)) * normal
+    grid = GridStart(surface, 64)
+    spacing = 1.0 / 63
+    vertex = np.stack([grid.us[grid.vertex(points)[0]], grid.vs[grid.vertex(points)[1]]], axis=1)
+    assert np.abs(vertex - foot).max() > 0.3 * spacing
+    assert np.abs(grid(points) - foot).max() < 0.1 * spacing
+    uv, dist = closest_parameters(surface, points, resolution=64)
+    np.testing.assert_allclose(uv, foot, atol=1e-9)
 
 
 def test_anderson_mixing_solves_a_slow_linear_iteration_much_faster():
