@@ -4,6 +4,8 @@ edges kept on the domain's.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
@@ -83,8 +85,16 @@ class AndersonMixing:
         return g - (d_g @ c).reshape(g.shape)
 
 
+class Polished(NamedTuple):
+    control: np.ndarray  # (n_free, 3) the best round's free control points
+    surface: object  # their NurbsSurface
+    uv: np.ndarray  # (N, 2) the points' foot-point parameters on it
+    rounds: int  # rounds taken after the first solve
+
+
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
-           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False):
+           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int,
+           realign: bool = False) -> Polished:
     """Alternate the least-squares solve with parameter correction while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
     does not lower the error).
@@ -109,4 +119,4 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
         best_image = align_to_domain(new_uv, layout) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
-    return best_control, best, best_uv, it
+    return Polished(best_control, best, best_uv, it)
