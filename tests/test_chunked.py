@@ -144,3 +144,33 @@ def test_refinement_step_is_the_dense_damped_gauss_newton_step_in_any_chunks(lay
             steps.append(got)
     for g, w in zip(steps[0] + steps[1], steps[2] + steps[3]):
         np.testing.assert_allclose(g, w, rtol=0, atol=1e-12 * max(np.abs(w).max(), 1.0))
+
+
+def test_foot_points_of_points_that_stopped_moving_are_not_searched_again(monkeypatch):
+    """Points started at their foot points cost one distance and one Newton step each;
+    only those whose step is still above the tolerance (a few, at the floor of
+    rounding) are line-searched. Of a mixed set only the points still moving are
+    evaluated again."""
+    layout = NetLayout((5, 5), (3, 3))
+    i, j = np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5), indexing="ij")
+    surface = layout.surface(np.stack([i, j, 0.2 * np.sin(3 * i) * j], -1).reshape(-1, 3), np.ones(25))
+    rng = np.random.default_rng(7)
+    points = surface.evaluate(*rng.uniform(0.1, 0.9, (2, 200))) + 0.01 * rng.normal(size=(200, 3))
+    foot, dist = projection.closest_parameters(surface, points)
+    still = int(np.sum(np.abs(projection.foot_point_step(surface, points, foot, (False, False))).max(axis=1)
+                       > projection.PARAMETER_TOLERANCE))
+    assert still < 20
+    evaluated, stepped = [], []
+    evaluate, step = surface.evaluate, projection.foot_point_step
+    monkeypatch.setattr(surface, "evaluate", lambda u, v: evaluated.append(len(u)) or evaluate(u, v))
+    monkeypatch.setattr(projection, "foot_point_step", lambda s, p, uv, c: stepped.append(len(p)) or step(s, p, uv, c))
+    again, again_dist = projection.closest_parameters(surface, points, foot)
+    np.testing.assert_array_equal(again, foot)
+    np.testing.assert_array_equal(again_dist, dist)
+    assert evaluated[0] == 200 and stepped[0] == 200 and max(evaluated[1:] + stepped[1:], default=0) <= still
+    start = foot.copy()
+    start[:10] += 0.01  # ten points moved off their foot points
+    evaluated.clear(), stepped.clear()
+    projection.closest_parameters(surface, points, start)
+    assert evaluated[0] == 200 and stepped[0] == 200
+    assert max(evaluated[1:] + stepped[1:]) <= 10 + still

@@ -34,6 +34,7 @@ from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
 from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers
+from .sampling import big_cloud_sample, finished
 from .solve import RegularisedLeastSquares
 from .topology import choose_topology, layout_for, parametrise_for
 
@@ -203,16 +204,24 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
+        # a big cloud is fitted on a subsample holding the swarm's points, then finished on all
+        big = big_cloud_sample(len(cloud), sample) if config.strategy == "hybrid" else None
+        fitted, fitted_sample = (cloud, sample) if big is None else (
+            Cloud(cloud.points[big], cloud.frame, cloud.duplicates), np.searchsorted(big, sample))
         scores = None
         if config.topology == "auto":
-            topology, par, scores = choose_topology(cloud.points, sample, config)
+            topology, par, scores = choose_topology(fitted.points, fitted_sample, config)
         else:
             topology = config.topology
-            par = parametrise_for(cloud.points, sample, topology, config)
+            par = parametrise_for(fitted.points, fitted_sample, topology, config)
         layout = layout_for(topology, config.net_size, config.degrees)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         run = run_full if config.strategy == "full" else run_hybrid
-        surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
+        surface, swarm, info = run(fitted, layout, par, fitted_sample, config, rng, progress)
+        if big is not None:
+            surface, keep, rounds = finished(layout, surface, cloud.points, info["smoothing"], config.robust,
+                                             info["refined"] and any(layout.bounded))
+            info.update(outliers=int(len(keep) - keep.sum()), subsample={"points": int(len(big)), "final_rounds": rounds})
         _, dist = closest_parameters(surface, cloud.frame.to_local(points))
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
@@ -246,6 +255,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
                      "off the surface) left out of the fit; rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
+    if "subsample" in info:
+        notes.append(f"fitted on {info['subsample']['points']} of the {len(cloud)} points, "
+                     f"then {info['subsample']['final_rounds']} rounds of parameter correction on all")
     if scores is not None:
         info["topology_scores"] = scores
         notes.append(f"topology auto: {topology} (" + ", ".join(

@@ -94,16 +94,18 @@ class Polished(NamedTuple):
 
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
            weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int,
-           realign: bool = False) -> Polished:
+           realign: bool = False, align: bool = True) -> Polished:
     """Alternate the least-squares solve with parameter correction while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
     does not lower the error).
 
+    The data's extent is first aligned onto the domain (``align``; not for parameters
+    that are foot points on a surface already), with ``realign`` at every round.
     Returns the best control points (free), their surface, its foot-point parameters
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
-    uv = best_image = align_to_domain(uv, layout)
+    uv = best_image = align_to_domain(uv, layout) if align or realign else uv
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
         control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
