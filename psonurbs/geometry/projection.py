@@ -92,22 +92,19 @@ def newton_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
     dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
     active = np.arange(len(points))
     for _ in range(iterations):
-        # a point is done once its step falls below PARAMETER_TOLERANCE (it is at its
-        # foot point: no line search) or no halving of its step brings it closer
         step = foot_point_step(surface, points[active], uv[active], closed)
-        going = np.abs(step).max(axis=1) > PARAMETER_TOLERANCE
-        active, step = active[going], step[going]
         moved = np.zeros(len(active), bool)
         for halving in range(LINE_SEARCH_HALVINGS):
             todo = np.flatnonzero(~moved)
-            if len(todo) == 0:
-                break
             trial = keep_in_domain(uv[active[todo]] + 0.5 ** halving * step[todo], closed)
             trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[active[todo]]) ** 2, axis=1)
             better = trial_d2 < dist2[active[todo]]
             uv[active[todo[better]]], dist2[active[todo[better]]] = trial[better], trial_d2[better]
             moved[todo[better]] = True
-        active = active[moved]
+            if moved.all():
+                break
+        # a point is done once it stops moving or its step falls below PARAMETER_TOLERANCE
+        active = active[moved & (np.abs(step).max(axis=1) > PARAMETER_TOLERANCE)]
         if len(active) == 0:
             break
     return uv, np.sqrt(dist2)
