@@ -5,12 +5,14 @@ live here. Exit codes (also in ``psonurbs fit --help``):
 
     0    every cloud was fitted (and passed the gate)
     1    internal error (a bug in psonurbs)
-    2    unusable input or config
+    2    unusable input or config (usage errors too)
     3    a fit is above --max-rmse / --max-rmse-rel
+    4    a worker process died while fitting a cloud (killed, out of memory)
     130  interrupted (Ctrl-C)
     143  terminated (SIGTERM)
 
-When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3 > 0.
+When several apply, the most severe wins: 143 > 130 > 1 > 4 > 2 > 3 > 0. Every error is
+one line on stderr, ``psonurbs: error: ...`` (click's usage errors included).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import psonurbs
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
-from psonurbs.run.batch import run_batch
+from psonurbs.run.batch import preflight, run_batch
 from psonurbs.run.gate import Gate
 from psonurbs.run.inputs import Job, expand_inputs, jobs_from_inputs
 from psonurbs.run.summary import (
@@ -37,6 +39,7 @@ from psonurbs.run.summary import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_TERMINATED,
+    WORKER_LOST,
     Row,
     Terminated,
     exit_code,
@@ -44,9 +47,23 @@ from psonurbs.run.summary import (
     write_summary,
 )
 
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(32), 127]}
+_CONTROL.update({ord("\n"): "\\n", ord("\r"): "\\r", ord("\t"): "\\t"})
+
+
+def one_line(text: str) -> str:
+    """``text`` safe to print as one line: control characters (a newline in a file name)
+    escaped, and the undecodable bytes of a file name (surrogates) shown as ``\\xff``."""
+    text = text.translate(_CONTROL)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    return text
+
 
 def _error(message: str) -> None:
-    click.echo(f"psonurbs: error: {message}", err=True)
+    click.echo(f"psonurbs: error: {one_line(message)}", err=True)
 
 
 def _internal_error(error: BaseException | str, trace: str = "") -> None:
@@ -58,7 +75,7 @@ def _internal_error(error: BaseException | str, trace: str = "") -> None:
             traceback.print_exc()
     if isinstance(error, BaseException):
         error = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-    click.echo(f"psonurbs: internal error: {error}", err=True)
+    click.echo(f"psonurbs: internal error: {one_line(error)}", err=True)
     if not debug:
         click.echo("psonurbs: this is a bug; set PSONURBS_DEBUG=1 to see the traceback", err=True)
 
@@ -119,7 +136,30 @@ def jobs_option(help_text: str):
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Commands(click.Group):
+    """The command group, reporting click's own errors as the tool does its own: one line
+    ``psonurbs: error: ...`` on stderr and exit 2 (a usage error is unusable input), instead
+    of click's ``Usage: ...`` block."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as e:
+            hint = f" (see 'psonurbs {e.ctx.info_name} --help')" if e.ctx is not None and e.ctx.parent else ""
+            _error(f"{e.format_message()}{hint}")
+            code = EXIT_INPUT
+        except click.ClickException as e:
+            _error(e.format_message())
+            code = e.exit_code
+        except click.exceptions.Abort:  # Ctrl-C or end of input while click prompts or parses
+            click.echo("psonurbs: interrupted", err=True)
+            code = EXIT_INTERRUPTED
+        if not standalone_mode:
+            return code
+        sys.exit(code if isinstance(code, int) else EXIT_OK)
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(psonurbs.__version__, "--version", prog_name="psonurbs")
 def cli() -> None:
     """Fit NURBS surfaces to 3D point clouds by particle swarm optimisation."""
@@ -192,10 +232,12 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
            could not be used; the others were still fitted)
       3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
            (its files are written; the others are still fitted)
+      4    a worker process died while fitting a cloud (with --jobs N:
+           killed, out of memory); the others are still fitted
       130  interrupted (Ctrl-C); no half-written files are left
       143  terminated (SIGTERM, e.g. a CI timeout); no half-written files
 
-    When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3.
+    When several apply, the most severe wins: 143 > 130 > 1 > 4 > 2 > 3.
     """
     try:
         code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
@@ -215,6 +257,7 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
     try:
         config = load_config(config_path).with_overrides(**overrides)
         formats = check_formats(formats)
+        preflight(config)
     except ConfigError as e:
         _error(str(e))
         return EXIT_INPUT
@@ -278,16 +321,19 @@ def _report(row: Row) -> None:
     if row.status == "bad-input":
         _error(row.message)
         return
+    if row.status == WORKER_LOST:
+        _error(row.message)
+        return
     if row.status == "internal-error":
         _internal_error(f"{row.file}: {row.message}", row.detail)
         return
-    name = Path(row.file).name
+    name = one_line(Path(row.file).name)
     line = (f"{name}: {row.points} points, net {row.net} ({row.topology}), "
             f"rmse {row.rmse:.2e}, max {row.max_error:.2e}, {row.seconds:.1f} s")
     click.echo("; ".join([line, *row.notes]))
     if row.status == "gate-exceeded":
         gate_reason = row.message.split("; ")[0]
-        click.echo(f"psonurbs: gate exceeded: {row.file}: {gate_reason}", err=True)
+        click.echo(f"psonurbs: gate exceeded: {one_line(row.file)}: {gate_reason}", err=True)
 
 
 @cli.command("score")

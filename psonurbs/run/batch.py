@@ -29,10 +29,17 @@ from psonurbs.errors import PsonurbsError
 
 from .gate import Gate
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, worker_lost_row
 from .workers import pool_run
 
-__all__ = ["FitOutcome", "fit_job", "run_batch"]
+__all__ = ["FitOutcome", "fit_job", "run_batch", "preflight"]
+
+
+def preflight(config) -> None:
+    """Refuse (ConfigError) a config whose arrays would be too large whatever the cloud."""
+    from psonurbs.fitting.budget import check_budget
+
+    check_budget(config)
 
 
 @dataclass
@@ -56,6 +63,8 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     exception an ``internal-error`` row (with the traceback in ``row.detail``).
     """
     import psonurbs
+    from psonurbs.fitting.budget import check_budget
+    from psonurbs.fitting.organise import check_coordinates
     from psonurbs.formats.cad import render_exports
     from psonurbs.formats.clouds import read_cloud
 
@@ -65,6 +74,8 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     try:
         points = read_cloud(path)
         row.points = int(len(points))
+        check_coordinates(points)  # refused before any fitter sees them
+        check_budget(job.config, len(points))
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
         result = fit(points, job.config, on_iteration=on_iteration)
@@ -203,10 +214,10 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
     for k, row in pending_reports.items():
         done(k, row)
 
-    def lost(k: int, error: BaseException, trace: str) -> None:
-        done(k, Row(str(jobs[k].path), status=INTERNAL, detail=trace,
-                    message=f"worker process failed: {type(error).__name__}: {error}"))
+    def failed(k: int, error: str, trace: str) -> None:
+        done(k, Row(str(jobs[k].path), status=INTERNAL, detail=trace, message=f"worker process failed: {error}"))
 
     pool_run(fit_job, {k: (jobs[k], tuple(formats), None, fit) for k in todo}, min(workers, len(todo)),
-             lambda k, outcome: done(k, _finish(outcome, out_dir, gate)), lost)
+             lambda k, outcome: done(k, _finish(outcome, out_dir, gate)), failed,
+             lambda k, how: done(k, worker_lost_row(str(jobs[k].path), how)))
     return rows  # type: ignore[return-value]
