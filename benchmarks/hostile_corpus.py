@@ -157,7 +157,7 @@ def corpus() -> list[Case]:
     cloud("scaled_2^-400.ply", ply(franke(120) * 2.0 ** -400), (0,))
     cloud("offset_1e11.ply", ply(franke(120) + 1e11), (0,))
     cloud("offset_1e15.ply", ply(franke(120) + 1e15))
-    cloud("outlier_1e100.ply", ply(np.vstack([franke(120), [[1e100, 0, 0]]])), (0,))
+    cloud("outlier_1e100.ply", ply(np.vstack([franke(120), [[1e100, 0, 0]]])), (0, 2))
     cloud("three_points.xyz", xyz(franke(3)))
     cloud("nine_points.xyz", xyz(franke(9)), (0, 2))
     cloud("all_identical.xyz", xyz(np.ones((40, 3))))
@@ -262,7 +262,7 @@ def corpus() -> list[Case]:
     config("file_2MB.yaml", "# " + "c" * 2_000_000 + "\n")
     config("iterations_1e9.yaml", "swarm: {iterations: 1000000000}\n", oversized=True)
     config("particles_1e9.yaml", "swarm: {particles: 1000000000}\n", oversized=True)
-    config("evaluations_25e6.yaml", "swarm: {particles: 5000, iterations: 5000}\n", oversized=True)
+    config("evaluations_25e6.yaml", "swarm: {particles: 5000, iterations: 5000}\n", oversized=True)  # > 1e7
     config("tessellation_1e5.yaml", "tessellation: [100000, 100000]\n", oversized=True)
     config("tessellation_3000.yaml", "tessellation: [3000, 3000]\n", oversized=True)
     config("net_200.yaml", "net_size: [200, 200]\n", oversized=True)

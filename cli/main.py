@@ -145,8 +145,8 @@ class _Commands(click.Group):
         try:
             code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         except click.UsageError as e:
-            hint = f" (see 'psonurbs {e.ctx.info_name} --help')" if e.ctx is not None and e.ctx.parent else ""
-            _error(f"{e.format_message()}{hint}")
+            hint = f"; see 'psonurbs {e.ctx.info_name} --help'" if e.ctx is not None and e.ctx.parent else ""
+            _error(f"{e.format_message().rstrip('.')}{hint}")
             code = EXIT_INPUT
         except click.ClickException as e:
             _error(e.format_message())

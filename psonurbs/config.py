@@ -166,7 +166,7 @@ BOUNDS: dict[str, Bound] = {
     "smoothing": Bound(1e6, "relative weight of the smoothness term"),
     "weight_bounds": Bound(1e6, "NURBS weights"),
 }
-MAX_EVALUATIONS = 1_000_000  # swarm.particles x swarm.iterations: fitness evaluations of one fit
+MAX_EVALUATIONS = 10_000_000  # swarm.particles x swarm.iterations: fitness evaluations of one fit
 MAX_TESSELLATION_VERTICES = 4_000_000  # tessellation[0] x tessellation[1]
 MIN_WEIGHT_BOUND = 1e-6  # weight_bounds[0] at least this (its log bounds the swarm's search)
 

@@ -301,3 +301,16 @@ def test_a_killed_worker_costs_only_its_own_cloud(tmp_path):
     for k in (0, 1, 3, 4, 5):
         assert (out / f"c{k}.json").is_file()
     assert not list(out.glob("c2*"))
+
+
+# ---- clouds larger than the config can fit, refused from the header ---------------------------
+
+def test_a_cloud_larger_than_the_budget_is_refused_before_reading(tmp_path, fake_fit):
+    """A header declaring 10^9 vertices (24 GB of doubles) is refused from the header alone;
+    the budget allows 2^30 / (8 x 9) = 14,913,080 points for orders 3 x 3."""
+    path = tmp_path / "billion.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
+                     b"property double x\nproperty double y\nproperty double z\nend_header\n" + b"\0" * 480)
+    result = fake_fit.run("fit", path, "-o", tmp_path / "out")
+    refused(result, "1,000,000,000 points are more than this config can fit (at most 14,913,080")
+    assert fake_fit.calls == []

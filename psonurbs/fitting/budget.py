@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from psonurbs.errors import ConfigError, InputError
 
-__all__ = ["ARRAY_LIMIT", "NET_PER_POINT", "NET_FLOOR", "Estimate", "largest_arrays", "check_budget"]
+__all__ = ["ARRAY_LIMIT", "NET_PER_POINT", "NET_FLOOR", "Estimate", "largest_arrays", "check_budget", "max_points"]
 
 ARRAY_LIMIT = 1 << 30  # bytes one array of a fit may take (1 GiB)
 NET_PER_POINT = 4  # control points per point of the cloud, at most ...
@@ -59,6 +59,19 @@ def largest_arrays(config, n_points: int | None = None) -> list[Estimate]:
             out.append(Estimate(8 * 2 * d * d, f"the full strategy's {2 * d:,} x {d:,} constraint matrix "
                                                f"({d:,} unknowns for {n_points:,} points)"))
     return sorted(out, key=lambda e: -e.bytes)
+
+
+def max_points(config) -> int:
+    """The most points a fit with this config can take within :data:`ARRAY_LIMIT` (the basis
+    rows; for strategy full, its constraint matrix): a reader can refuse a larger cloud from
+    its header, before reading it."""
+    k, l = config.orders
+    most = ARRAY_LIMIT // (8 * k * l)
+    if config.strategy == "full":
+        nu, nv = config.net_size
+        d = int((ARRAY_LIMIT / 16) ** 0.5)
+        most = min(most, max((d - 4 * nu * nv - (nu - k) - (nv - l)) // 2, 0))
+    return most
 
 
 def check_budget(config, n_points: int | None = None) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from psonurbs.errors import InputError, existing_file
 
-from .records import MAX_TEXT_BYTES, check_text_size
+from .records import MAX_TEXT_BYTES, check_point_count, check_text_size
 
 __all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "read_cloud", "read_with_open3d"]
 
@@ -35,12 +35,14 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 # ---- reading ---------------------------------------------------------------
 
-def read_cloud(path: str | os.PathLike) -> np.ndarray:
+def read_cloud(path: str | os.PathLike, max_points: int | None = None) -> np.ndarray:
     """Read a point cloud file as an ``(N, 3)`` float64 array.
 
     ``.ply`` and ``.pcd`` are read with open3d; ``.xyz``, ``.txt`` and ``.pts``
     are text with x, y, z in the first three columns, separated by whitespace or
     commas (``#`` starts a comment; a ``.pts`` file may begin with a point count).
+    With ``max_points``, a PLY or PCD whose header declares more points is refused
+    before its body is read (the caller knows what it can fit).
 
     Raises :class:`InputError` (message starting with the path) for a missing
     file, a directory or anything else that is not a regular file, an unknown
@@ -61,11 +63,11 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
         if suffix == ".ply":
             from .ply import read_ply
 
-            points = read_ply(path, name, head, size) if head else None
+            points = read_ply(path, name, head, size, max_points) if head else None
         elif suffix == ".pcd":
             from .pcd import read_pcd
 
-            points = read_pcd(path, name, head, size) if head else None
+            points = read_pcd(path, name, head, size, max_points) if head else None
         else:
             check_text_size(name, size, "a text cloud")
             points = _read_text(path, name, suffix) if head else None
@@ -75,6 +77,7 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{name}: not enough memory to read the file") from None
     if points is None:
         raise InputError(f"{name}: file is empty")
+    check_point_count(name, len(points), max_points)
 
     if len(points) == 0:
         raise InputError(f"{name}: no points found in the file")

@@ -15,7 +15,15 @@ import numpy as np
 
 from psonurbs.errors import InputError
 
-from .records import ascii_table, check_holds, check_text_size, declared_count, read_binary, xyz_columns
+from .records import (
+    ascii_table,
+    check_holds,
+    check_point_count,
+    check_text_size,
+    declared_count,
+    read_binary,
+    xyz_columns,
+)
 
 __all__ = ["read_pcd"]
 
@@ -24,8 +32,9 @@ _TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 
 _KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 
 
-def read_pcd(path: Path, name: str, head: bytes, size: int) -> np.ndarray:
-    """The (N, 3) coordinates of a PCD file (``head``: its first bytes, ``size``: its length)."""
+def read_pcd(path: Path, name: str, head: bytes, size: int, max_points: int | None = None) -> np.ndarray:
+    """The (N, 3) coordinates of a PCD file (``head``: its first bytes, ``size``: its length);
+    more points declared than ``max_points`` are refused before reading."""
     fields: dict[str, list[str]] = {}
     offset = 0
     lines = 0
@@ -62,6 +71,7 @@ def read_pcd(path: Path, name: str, head: bytes, size: int) -> np.ndarray:
                              f"with SIZE {s[:8]}")
         layout.append((field, code, declared_count(name, f"COUNT of {field[:20]}", c)))
     count = _point_count(name, fields)
+    check_point_count(name, count, max_points)
     data = (fields["DATA"] or ["?"])[0].lower()
     if data == "ascii":
         check_text_size(name, size, "an ASCII PCD")

@@ -17,7 +17,15 @@ import numpy as np
 
 from psonurbs.errors import InputError
 
-from .records import ascii_table, check_holds, check_text_size, declared_count, read_binary, xyz_columns
+from .records import (
+    ascii_table,
+    check_holds,
+    check_point_count,
+    check_text_size,
+    declared_count,
+    read_binary,
+    xyz_columns,
+)
 
 __all__ = ["PlyHeader", "parse_header", "read_ply"]
 
@@ -95,8 +103,9 @@ def parse_header(name: str, head: bytes) -> PlyHeader:
     return PlyHeader(fmt, elements, body, head[:body].count(b"\n"))
 
 
-def read_ply(path: Path, name: str, head: bytes, size: int) -> np.ndarray:
-    """The (N, 3) vertex coordinates of a PLY file (``head``: its first bytes, ``size``: its length)."""
+def read_ply(path: Path, name: str, head: bytes, size: int, max_points: int | None = None) -> np.ndarray:
+    """The (N, 3) vertex coordinates of a PLY file (``head``: its first bytes, ``size``: its
+    length); more vertices declared than ``max_points`` are refused before reading."""
     header = parse_header(name, head)
     vertex = header.element("vertex")
     if vertex is None:
@@ -104,6 +113,7 @@ def read_ply(path: Path, name: str, head: bytes, size: int) -> np.ndarray:
         raise InputError(f"{name}: PLY file has no vertices (no 'vertex' element; elements: {others})")
     if vertex.count == 0:
         raise InputError(f"{name}: PLY file has no vertices (header declares 0)")
+    check_point_count(name, vertex.count, max_points)
     fields = [p for p, _ in vertex.properties]
     columns = xyz_columns(name, fields, "PLY vertices")
     before = header.elements[:header.elements.index(vertex)]

@@ -95,6 +95,14 @@ def ascii_table(name: str, kind: str, lines: Sequence[str], count: int, columns:
     return table
 
 
+def check_point_count(name: str, count: int, max_points: int | None) -> None:
+    """Refuse a cloud of more points than the caller can fit (checked from a header's count
+    before the body is read)."""
+    if max_points is not None and count > max_points:
+        raise InputError(f"{name}: {count:,} points are more than this config can fit "
+                         f"(at most {max_points:,} within the memory budget)")
+
+
 def check_text_size(name: str, size: int, what: str) -> None:
     if size > MAX_TEXT_BYTES:
         raise InputError(f"{name}: file is too large for {what} ({size / 2**20:.0f} MiB; at most "

@@ -63,7 +63,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     exception an ``internal-error`` row (with the traceback in ``row.detail``).
     """
     import psonurbs
-    from psonurbs.fitting.budget import check_budget
+    from psonurbs.fitting.budget import check_budget, max_points
     from psonurbs.fitting.organise import check_coordinates
     from psonurbs.formats.cad import render_exports
     from psonurbs.formats.clouds import read_cloud
@@ -72,7 +72,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     row = Row(str(path))
     start = time.perf_counter()
     try:
-        points = read_cloud(path)
+        points = read_cloud(path, max_points(job.config))
         row.points = int(len(points))
         check_coordinates(points)  # refused before any fitter sees them
         check_budget(job.config, len(points))
