@@ -30,7 +30,7 @@ import os
 import re
 import reprlib
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Hashable, Mapping
 
 import yaml
 
@@ -168,6 +168,7 @@ BOUNDS: dict[str, Bound] = {
 }
 MAX_EVALUATIONS = 10_000_000  # swarm.particles x swarm.iterations: fitness evaluations of one fit
 MAX_TESSELLATION_VERTICES = 4_000_000  # tessellation[0] x tessellation[1]
+MIN_SWARM_POINTS = 16  # fewer cannot judge a particle (and the robust pass may leave none of them)
 MIN_WEIGHT_BOUND = 1e-6  # weight_bounds[0] at least this (its log bounds the swarm's search)
 
 
@@ -280,8 +281,8 @@ class FitConfig:
         put("swarm", swarm)
         put("smoothing", _float("smoothing", self.smoothing, what="a finite number >= 0",
                                 ok=lambda x: x >= 0))
-        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=1,
-                                 what="a positive integer"))
+        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=MIN_SWARM_POINTS,
+                                 what=f"an integer >= {MIN_SWARM_POINTS}"))
         put("polish_iterations", _int("polish_iterations", self.polish_iterations, minimum=0,
                                       what="an integer >= 0"))
         put("tessellation", _pair("tessellation", self.tessellation,
@@ -449,6 +450,9 @@ def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bo
     seen: dict = {}
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)
+        if not isinstance(key, Hashable):
+            raise yaml.constructor.ConstructorError(
+                None, None, f"a {type(key).__name__} cannot be a key", key_node.start_mark)
         if isinstance(key, str) and key in seen:
             raise yaml.constructor.ConstructorError(
                 None, None, f"duplicate key '{key}'", key_node.start_mark)

@@ -314,19 +314,41 @@ def test_fuzz_the_command_line(data):
         check_contract(result, tmp / "out", cloud, time.perf_counter() - start)
 
 
-@settings(max_examples=8, deadline=None, derandomize=True, database=None,
+@st.composite
+def valid_configs(draw) -> str:
+    """A config inside every bound, its choices at random, with a tiny swarm."""
+    k, l = draw(st.integers(2, 5)), draw(st.integers(2, 5))
+    topology = draw(st.sampled_from(["open", "cylinder", "sphere", "torus", "auto"]))
+    nu, nv = draw(st.integers(k, 9)), draw(st.integers(max(l, 3 if topology == "sphere" else l), 9))
+    lo, hi = draw(st.sampled_from([0.2, 1e-6, 0.9, 1.0])), draw(st.sampled_from([5.0, 1.0, 1e6, 1.1]))
+    doc = {"orders": [k, l], "net_size": [nu, nv], "topology": topology,
+           "strategy": draw(st.sampled_from(["hybrid", "hybrid", "full"])),
+           "swarm": {"particles": draw(st.integers(1, 4)), "iterations": draw(st.integers(1, 3)),
+                     "inertia": draw(st.sampled_from([0.0, 0.7, 10.0])), "c1": draw(st.sampled_from([0.0, 1.5, 10.0])),
+                     "c2": draw(st.sampled_from([0.0, 1.5, 10.0])), "seed": draw(st.integers(0, 2**64 - 1))},
+           "smoothing": draw(st.sampled_from([0.0, 1e-6, 1.0, 1e6])), "swarm_points": draw(st.sampled_from([16, 17, 100])),
+           "polish_iterations": draw(st.sampled_from([0, 1, 3])), "tessellation": [draw(st.integers(2, 30))] * 2,
+           "weight_bounds": [lo, hi], "min_knot_gap": draw(st.sampled_from([1e-9, 0.2, 0.999])),
+           "cross_validation": draw(st.booleans()), "refine": draw(st.booleans()),
+           "remove_outliers": draw(st.booleans()), "robust": draw(st.booleans())}
+    return json.dumps(doc)
+
+
+REAL_EXAMPLES = int(os.environ.get("PSONURBS_FUZZ_REAL_EXAMPLES", "8"))  # more for a longer local run
+
+
+@settings(max_examples=REAL_EXAMPLES, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
 def test_fuzz_real_fits_of_tiny_clouds(data):
-    """The real fitter on small generated clouds (odd shapes and scales), tiny swarms."""
+    """The real fitter on small generated clouds (odd shapes and scales) with configs drawn
+    inside the bounds (every choice at random, tiny swarms)."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         p = cloud_points(data.draw, hostile=False)
         cloud = tmp / "tiny.xyz"
         np.savetxt(cloud, p, fmt="%.17g")
-        topology = data.draw(st.sampled_from(["open", "cylinder", "sphere", "torus", "auto"]))
-        (tmp / "cfg.yaml").write_text(f"topology: {topology}\nswarm: {{particles: 3, iterations: 2}}\n"
-                                      "polish_iterations: 3\nswarm_points: 100\n")
+        (tmp / "cfg.yaml").write_text(data.draw(valid_configs(), label="config"))
         start = time.perf_counter()
         with time_bound(60):
             result = run("fit", cloud, "-c", tmp / "cfg.yaml", "-o", tmp / "out", "-q")

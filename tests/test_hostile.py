@@ -38,13 +38,14 @@ def psonurbs(*args, cwd: Path, timeout: float = 60, memory: int = MEMORY_LIMIT) 
         pytest.fail(f"psonurbs {' '.join(map(str, args))} did not finish in {timeout} s")
 
 
-def refused(result, *needles: str) -> str:
-    """Exit 2, one stderr line in the tool's format holding every needle; returns the line."""
+def refused(result, *needles: str, longest: int = 400) -> str:
+    """Exit 2, one stderr line in the tool's format holding every needle (and, a path aside,
+    short); returns the line."""
     lines = result.stderr.splitlines()
     code = result.returncode if isinstance(result, subprocess.CompletedProcess) else result.exit_code
     assert code == 2, result.stderr[-2000:]
     assert len(lines) == 1, result.stderr[-2000:]
-    assert lines[0].startswith("psonurbs: error: ") and len(lines[0]) < 400, lines[0][:2000]
+    assert lines[0].startswith("psonurbs: error: ") and len(lines[0]) < longest, lines[0][:2000]
     for needle in needles:
         assert needle in lines[0], lines[0]
     assert "Traceback" not in result.stderr
@@ -314,3 +315,29 @@ def test_a_cloud_larger_than_the_budget_is_refused_before_reading(tmp_path, fake
     result = fake_fit.run("fit", path, "-o", tmp_path / "out")
     refused(result, "1,000,000,000 points are more than this config can fit (at most 14,913,080")
     assert fake_fit.calls == []
+
+
+# ---- names the terminal and the summary must survive ------------------------------------------
+
+def test_a_file_name_that_is_not_utf8_is_fitted_and_reported_escaped(tmp_path, fake_fit):
+    path = Path(os.fsdecode(os.fsencode(tmp_path) + b"/\xff\xfe.ply"))
+    path.write_bytes(ply_bytes(GOOD))
+    out = tmp_path / "out"
+    result = fake_fit.run("fit", path, "-o", out, "--format", "obj-nurbs")
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout.startswith("\\xff\\xfe.ply: 16 points")
+    assert f"{tmp_path}/\\xff\\xfe.ply" in (out / "summary.csv").read_text()
+    assert "g \\xff\\xfe" in Path(os.fsdecode(os.fsencode(out) + b"/\xff\xfe.obj")).read_text(errors="replace")
+
+
+def test_a_newline_in_a_file_name_stays_one_line(tmp_path, fake_fit):
+    path = tmp_path / "two\nlines.xyz"
+    path.write_text("1 2\n")
+    result = fake_fit.run("fit", path, "-o", tmp_path / "out")
+    refused(result, "two\\nlines.xyz: malformed point data")
+
+
+def test_a_path_too_long_is_refused(tmp_path, fake_fit):
+    path = str(tmp_path) + "/a" * 3000 + ".ply"
+    result = fake_fit.run("fit", path, "-o", tmp_path / "out")
+    refused(result, f"{path}: cannot read file (File name too long)", longest=len(path) + 100)

@@ -29,7 +29,7 @@ from psonurbs.errors import PsonurbsError
 
 from .gate import Gate
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, worker_lost_row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, printable, worker_lost_row
 from .workers import pool_run
 
 __all__ = ["FitOutcome", "fit_job", "run_batch", "preflight"]
@@ -96,7 +96,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
             from psonurbs.geometry.nurbs import NurbsSurface
 
             exact = NurbsSurface.from_dict(surface)
-            obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices))
+            obj_extra, extra_files = render_exports(exact, formats, _export_name(path.stem), len(vertices))
         metrics = result.metrics
         row.topology = result.topology
         row.net = "x".join(str(n) for n in job.config.net_size)  # distinct control points
@@ -122,6 +122,11 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         row.detail = traceback.format_exc()
     row.seconds = time.perf_counter() - start
     return FitOutcome(row, path.stem)
+
+
+def _export_name(stem: str) -> str:
+    """The surface's name inside CAD files: the stem, on one line, encodable as UTF-8."""
+    return "".join(c if c.isprintable() else "_" for c in printable(stem)) or "surface"
 
 
 def _number(x) -> float | None:

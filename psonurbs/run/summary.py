@@ -105,7 +105,16 @@ def _cell(value) -> str:
         return ""
     if isinstance(value, float):
         return repr(value)
-    return str(value)
+    return printable(str(value))
+
+
+def printable(text: str) -> str:
+    """``text`` encodable as UTF-8: the undecodable bytes of a file name (surrogates) as ``\\xff``."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def render_summary_csv(rows: Sequence[Row]) -> str:
