@@ -341,3 +341,21 @@ def test_a_path_too_long_is_refused(tmp_path, fake_fit):
     path = str(tmp_path) + "/a" * 3000 + ".ply"
     result = fake_fit.run("fit", path, "-o", tmp_path / "out")
     refused(result, f"{path}: cannot read file (File name too long)", longest=len(path) + 100)
+
+
+# ---- a net the points cannot decide -----------------------------------------------------------
+
+def test_a_singular_fit_is_refused_as_input_not_a_crash(tmp_path):
+    """smoothing 0 on a sphere's 8 x 7 net with 40 points leaves the least-squares system
+    singular (the robust pass's first solve): a config these points cannot decide, exit 2."""
+    rng = np.random.default_rng(0)
+    x, y = rng.random((2, 40))
+    path = tmp_path / "sparse.ply"
+    path.write_bytes(ply_bytes(np.column_stack([x, y, np.sin(3 * x) * y])))
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("orders: [2, 2]\nnet_size: [8, 7]\ntopology: sphere\nsmoothing: 0.0\n"
+                   "swarm: {particles: 1, iterations: 1}\npolish_iterations: 0\nrefine: false\n")
+    out = tmp_path / "out"
+    result = run("fit", path, "-c", cfg, "-o", out, "-q")
+    refused(result, f"{path}: the least-squares system of the fit is singular", "smoothing above 0")
+    assert cloud_files(out) == []

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+from numpy.linalg import LinAlgError
+
 from psonurbs.errors import PsonurbsError
 
 from .gate import Gate
@@ -116,6 +118,10 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         message = str(e)
         prefix = f"{path}: "
         row.status, row.message = BAD_INPUT, message if message.startswith(prefix) else prefix + message
+    except LinAlgError as e:  # a net these points and this smoothing leave undecided
+        row.status = BAD_INPUT
+        row.message = (f"{path}: the least-squares system of the fit is singular ({e}): the points cannot decide "
+                       "this net; use a smaller net_size or a smoothing above 0")
     except Exception as e:  # a bug: reported in the row, the batch goes on
         row.status = INTERNAL
         row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
