@@ -257,7 +257,7 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
     try:
         config = load_config(config_path).with_overrides(**overrides)
         formats = check_formats(formats)
-        preflight(config)
+        preflight(config, str(config_path) if config_path else "the default config with the command-line options")
     except ConfigError as e:
         _error(str(e))
         return EXIT_INPUT

@@ -37,11 +37,16 @@ from .workers import pool_run
 __all__ = ["FitOutcome", "fit_job", "run_batch", "preflight"]
 
 
-def preflight(config) -> None:
-    """Refuse (ConfigError) a config whose arrays would be too large whatever the cloud."""
+def preflight(config, source: str | None = None) -> None:
+    """Refuse (ConfigError, its message prefixed with ``source``) a config whose arrays
+    would be too large whatever the cloud."""
+    from psonurbs.errors import ConfigError
     from psonurbs.fitting.budget import check_budget
 
-    check_budget(config)
+    try:
+        check_budget(config)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: {e}" if source else str(e)) from None
 
 
 @dataclass
