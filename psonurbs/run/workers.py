@@ -141,9 +141,9 @@ def pool_run(task: Callable, calls: dict[int, tuple], workers: int,
             worker.give(k, calls[k])
 
     try:
-        pool = [_Worker(context, task) for _ in range(min(workers, len(waiting)))]
-        for worker in pool:
-            next_task(worker)
+        for _ in range(min(workers, len(waiting))):
+            pool.append(_Worker(context, task))  # one by one: a Ctrl-C meanwhile stops those started
+            next_task(pool[-1])
         while any(w.job is not None for w in pool):
             busy = [w for w in pool if w.job is not None]
             ready = set(wait([w.connection for w in busy] + [w.process.sentinel for w in busy]))
