@@ -117,10 +117,12 @@ def lzf_pcd():
     return head + struct.pack("<II", 50, 1200) + os.urandom(50)
 
 
-def laughs(levels=9, width=9, key="tessellation"):
-    lines = ["a0: &a0 [" + ", ".join(["1"] * width) + "]"]
-    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]" for i in range(1, levels + 1)]
-    return "\n".join(lines) + f"\n{key}: *a{levels}\n"
+def laughs(levels: int = 9, width: int = 9, key: str = "tessellation") -> str:
+    """A "billion laughs" under a config key: width**levels values once expanded (9**9: 387
+    million), which printing the value in the message would have built."""
+    lines = [f"{key}:", "  - &a0 [" + ", ".join(["1"] * width) + "]"]
+    lines += [f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]" for i in range(1, levels + 1)]
+    return "\n".join(lines) + "\n"
 
 
 def fifo(name):

@@ -146,10 +146,12 @@ def test_a_billion_particles_is_refused_at_once(tmp_path, cloud50):
 
 # ---- YAML bombs --------------------------------------------------------------------------
 
-def laughs(levels: int, width: int, key: str = "tessellation") -> str:
-    lines = ["a0: &a0 [" + ", ".join(["1"] * width) + "]"]
-    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]" for i in range(1, levels + 1)]
-    return "\n".join(lines) + f"\n{key}: *a{levels}\n"
+def laughs(levels: int = 9, width: int = 9, key: str = "tessellation") -> str:
+    """A "billion laughs" under a config key: width**levels values once expanded (9**9: 387
+    million), which printing the value in the message would have built."""
+    lines = [f"{key}:", "  - &a0 [" + ", ".join(["1"] * width) + "]"]
+    lines += [f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]" for i in range(1, levels + 1)]
+    return "\n".join(lines) + "\n"
 
 
 def test_billion_laughs_is_refused_without_expanding(tmp_path, cloud50):
