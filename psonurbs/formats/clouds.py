@@ -24,7 +24,7 @@ import numpy as np
 
 from psonurbs.errors import InputError, existing_file
 
-from .records import MAX_TEXT_BYTES, check_point_count, check_text_size
+from .records import MAX_TEXT_BYTES, check_point_count, check_text_size, is_number
 
 __all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "read_cloud", "read_with_open3d"]
 
@@ -192,17 +192,9 @@ def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
         try:
             rows.append((float(tokens[0]), float(tokens[1]), float(tokens[2])))
         except ValueError:
-            bad = next(t for t in tokens[:3] if not _is_float(t))
+            bad = next(t for t in tokens[:3] if not is_number(t))
             errors.append(f"line {lineno}: '{bad[:40]}' is not a number")
     if errors:
         more = f" (and {len(errors) - 1} more bad lines)" if len(errors) > 1 else ""
         raise InputError(f"{name}: malformed point data at {errors[0]}{more}")
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
-
-
-def _is_float(token: str) -> bool:
-    try:
-        float(token)
-        return True
-    except ValueError:
-        return False

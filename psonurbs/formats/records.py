@@ -89,7 +89,7 @@ def ascii_table(name: str, kind: str, lines: Sequence[str], count: int, columns:
         try:
             table[i] = [float(t) for t in tokens]
         except ValueError:
-            bad = next(t for t in tokens if not _is_number(t))
+            bad = next(t for t in tokens if not is_number(t))
             raise InputError(f"{name}: malformed or truncated {kind} file: line {first_line + k}: "
                              f"'{bad[:40]}' is not a number") from None
     return table
@@ -109,7 +109,7 @@ def check_text_size(name: str, size: int, what: str) -> None:
                          f"{MAX_TEXT_BYTES >> 20} MiB of text; use a binary PLY)")
 
 
-def _is_number(token: str) -> bool:
+def is_number(token: str) -> bool:
     try:
         float(token)
         return True
