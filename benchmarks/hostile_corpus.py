@@ -406,10 +406,11 @@ def run_case(case: Case, directory: Path) -> Outcome:
     code = None if status is None else os.waitstatus_to_exitcode(status)
     seconds = time.perf_counter() - start
     text = (directory / "stderr.txt").read_bytes().decode("utf-8", "backslashreplace")
-    return Outcome(code, seconds, usage.ru_maxrss / 1024, text, verdict(case, code, text, directory / "out"))
+    longest = max((len(a) for a in args), default=0)  # a message may quote a path in full
+    return Outcome(code, seconds, usage.ru_maxrss / 1024, text, verdict(case, code, text, directory / "out", longest))
 
 
-def verdict(case: Case, code, stderr: str, out: Path) -> str:
+def verdict(case: Case, code, stderr: str, out: Path, longest_argument: int = 0) -> str:
     problems = []
     if code is None:
         problems.append(f"timed out ({TIME_LIMIT} s)")
@@ -417,7 +418,7 @@ def verdict(case: Case, code, stderr: str, out: Path) -> str:
         problems.append(f"exit {code}, expected {'/'.join(map(str, case.expect))}")
     if "Traceback" in stderr or "internal error" in stderr:
         problems.append("traceback/internal error")
-    if any(not line.startswith("psonurbs: ") or len(line) > 600 for line in stderr.splitlines()):
+    if any(not line.startswith("psonurbs: ") or len(line) > 600 + longest_argument for line in stderr.splitlines()):
         problems.append("stderr not one-line psonurbs messages")
     if code == 2 and case.group != "batch" and out.is_dir():
         written = [p.name for p in out.iterdir() if not p.name.startswith("summary.")]
