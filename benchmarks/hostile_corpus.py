@@ -321,8 +321,8 @@ def corpus() -> list[Case]:
         cases.append(Case(name, ["{dir}/c.ply", "-o", "{dir}/out", "-q", *opts], expect, "option",
                           files={"c.ply": GOOD, "quick.yaml": QUICK}))
     # the batch: a worker killed for real, a run terminated
-    batch = {f"b{k}.ply": ply(franke(400, seed=k, noise=1e-3)) for k in range(4)}
-    slow = "swarm: {particles: 20, iterations: 40}\n"
+    batch = {f"b{k}.ply": ply(franke(300, seed=k, noise=1e-3)) for k in range(4)}
+    slow = "swarm: {particles: 10, iterations: 30}\npolish_iterations: 20\n"
     cases.append(Case("jobs2_worker_sigkill", ["{dir}", "-c", "{dir}/slow.yaml", "-o", "{dir}/out", "-q", "--jobs",
                                                 "2"], (4,), "batch", setup="kill_worker",
                       files={**batch, "slow.yaml": slow}))
@@ -378,7 +378,8 @@ def run_case(case: Case, directory: Path) -> Outcome:
 
     command = [sys.executable, "-c", "from psonurbs.cli.main import main; main()", "fit", *args]
     start = time.perf_counter()
-    with open(directory / "stdout.txt", "wb") as out, open(directory / "stderr.txt", "wb") as err:
+    logs = directory.parent / f"{directory.name}.stdout", directory.parent / f"{directory.name}.stderr"
+    with open(logs[0], "wb") as out, open(logs[1], "wb") as err:  # beside: a case may fit its whole directory
         process = subprocess.Popen(command, stdout=out, stderr=err, preexec_fn=limits, cwd=directory,
                                    env={**os.environ, "PSONURBS_DEBUG": ""})
         signalled = False
@@ -387,7 +388,7 @@ def run_case(case: Case, directory: Path) -> Outcome:
             if pid:
                 break
             elapsed = time.perf_counter() - start
-            if case.setup in ("kill_worker", "terminate") and not signalled and elapsed > 12:
+            if case.setup in ("kill_worker", "terminate") and not signalled and elapsed > 10:
                 signalled = True  # the workers have started and are fitting
                 if case.setup == "terminate":
                     process.send_signal(signal.SIGTERM)
@@ -405,7 +406,7 @@ def run_case(case: Case, directory: Path) -> Outcome:
         process.returncode = 0  # reaped here: keep Popen from waiting again
     code = None if status is None else os.waitstatus_to_exitcode(status)
     seconds = time.perf_counter() - start
-    text = (directory / "stderr.txt").read_bytes().decode("utf-8", "backslashreplace")
+    text = logs[1].read_bytes().decode("utf-8", "backslashreplace")
     longest = max((len(a) for a in args), default=0)  # a message may quote a path in full
     return Outcome(code, seconds, usage.ru_maxrss / 1024, text, verdict(case, code, text, directory / "out", longest))
 

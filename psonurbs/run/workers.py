@@ -57,6 +57,8 @@ def _serve(connection, task: Callable) -> None:
             reply = (k, False, (_describe(e), traceback.format_exc()))
         try:
             connection.send(reply)
+        except OSError:  # the parent is gone (killed): nobody to answer
+            return
         except Exception as e:  # the result could not be pickled
             connection.send((k, False, (f"cannot send the result: {_describe(e)}", traceback.format_exc())))
 
