@@ -27,8 +27,12 @@ _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 
 
 def _worker_init() -> None:
-    """Each worker: Ctrl-C is the parent's business; one BLAS/OpenMP thread."""
+    """Each worker: Ctrl-C is the parent's business (it started with SIGINT blocked, see
+    :class:`_Worker`; now ignored, then unblocked); it ends with its parent; one BLAS/OpenMP
+    thread."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    _end_with_parent()
     for name in _THREAD_VARIABLES:
         os.environ[name] = "1"
     try:
@@ -36,6 +40,17 @@ def _worker_init() -> None:
 
         threadpool_limits(limits=1)
     except Exception:  # pragma: no cover - threadpoolctl is a dependency
+        pass
+
+
+def _end_with_parent() -> None:
+    """Linux: SIGTERM this worker when its parent dies (killed with SIGKILL, say), instead of
+    computing on for nobody. Elsewhere a worker notices when it next answers."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except Exception:  # pragma: no cover - not Linux
         pass
 
 
@@ -84,14 +99,15 @@ class _Worker:
 
     def __init__(self, context, task: Callable):
         parent_end, child_end = context.Pipe(duplex=True)
-        # the worker starts with SIGINT ignored (a disposition that survives exec), so a
-        # Ctrl-C reaches only this process, which then stops the pool
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # the worker starts with SIGINT blocked (a signal mask survives exec) until it ignores
+        # it, so a Ctrl-C reaches only this process; here a SIGINT meanwhile stays pending and
+        # is raised as soon as the mask is restored (ignoring it instead would lose it)
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             self.process = context.Process(target=_serve, args=(child_end, task), daemon=True)
             self.process.start()
         finally:
-            signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         child_end.close()
         self.connection = parent_end
         self.job: int | None = None
