@@ -154,7 +154,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
         seed: int | None, particles: int | None, iterations: int | None,
         topology: str | None, strategy: str | None, jobs: int, formats: tuple[str, ...],
         max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
-    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts).
+    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
 
     A CLOUD may be a file, a directory (its cloud files) or a quoted glob
     pattern ('scans/*.ply', 'scans/**/*.xyz'). For a cloud with file stem

@@ -1,4 +1,5 @@
-"""Reading point clouds (PLY, PCD, XYZ text) as (N, 3) arrays, refusing what is not one.
+"""Reading point clouds (PLY, PCD, XYZ text; LAS, LAZ, E57 through
+:mod:`psonurbs.formats.scans`) as (N, 3) arrays, refusing what is not one.
 
 Reading refuses anything that is not a usable cloud with an
 :class:`~psonurbs.errors.InputError` whose message starts with the file name
@@ -15,6 +16,7 @@ import os
 import re
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -22,21 +24,39 @@ import numpy as np
 
 from psonurbs.errors import InputError, existing_file
 
-__all__ = ["CLOUD_SUFFIXES", "read_cloud"]
+from .scans import SCAN_SUFFIXES, read_scan
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts")
+__all__ = ["CLOUD_SUFFIXES", "Cloud", "load_cloud", "read_cloud"]
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts") + SCAN_SUFFIXES
 _TEXT_SUFFIXES = (".xyz", ".txt", ".pts")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 # ---- reading ---------------------------------------------------------------
 
+@dataclass(frozen=True)
+class Cloud:
+    """A cloud as read: ``points`` ``(N, 3)`` float64, and the reader's notes (E57: how
+    many scans were merged), which a fit reports with its own."""
+
+    points: np.ndarray
+    notes: tuple[str, ...] = ()
+
+
 def read_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Read a point cloud file as an ``(N, 3)`` float64 array.
+    """Read a point cloud file as an ``(N, 3)`` float64 array (see :func:`load_cloud`)."""
+    return load_cloud(path).points
+
+
+def load_cloud(path: str | os.PathLike) -> Cloud:
+    """Read a point cloud file: its points as an ``(N, 3)`` float64 array, and notes.
 
     ``.ply`` and ``.pcd`` are read with open3d; ``.xyz``, ``.txt`` and ``.pts``
     are text with x, y, z in the first three columns, separated by whitespace or
-    commas (``#`` starts a comment; a ``.pts`` file may begin with a point count).
+    commas (``#`` starts a comment; a ``.pts`` file may begin with a point count);
+    ``.las``, ``.laz`` and ``.e57`` with the optional extra ``scan``
+    (:mod:`psonurbs.formats.scans`: real coordinates, E57 scans merged by their poses).
 
     Raises :class:`InputError` (message starting with the path) for a missing
     file, a directory, an unknown extension, an unreadable, empty or malformed
@@ -57,7 +77,11 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
     if not head:
         raise InputError(f"{name}: file is empty")
 
-    if suffix == ".ply":
+    notes: tuple[str, ...] = ()
+    if suffix in SCAN_SUFFIXES:
+        scan = read_scan(path, name)
+        points, notes = scan.points, scan.notes
+    elif suffix == ".ply":
         points = _read_ply(path, name, head)
     elif suffix == ".pcd":
         points = _read_open3d(path, name, "pcd")
@@ -72,7 +96,7 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
     if n_bad:
         raise InputError(f"{name}: {n_bad} of {len(points)} points have non-finite coordinates "
                          f"({int(bad_nan.sum())} NaN, {int(bad_inf.sum())} infinite)")
-    return np.ascontiguousarray(points, dtype=np.float64)
+    return Cloud(np.ascontiguousarray(points, dtype=np.float64), notes)
 
 
 @contextlib.contextmanager

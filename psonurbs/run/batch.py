@@ -26,13 +26,14 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from psonurbs.errors import PsonurbsError
+from psonurbs.formats.clouds import Cloud, load_cloud
 
 from .gate import Gate
 from .inputs import Job
 from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row
 from .workers import pool_run
 
-__all__ = ["FitOutcome", "fit_job", "run_batch"]
+__all__ = ["FitOutcome", "fit_cloud", "fit_job", "read_job", "run_batch"]
 
 
 @dataclass
@@ -55,19 +56,42 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     :class:`~psonurbs.errors.PsonurbsError` gives a ``bad-input`` row, any other
     exception an ``internal-error`` row (with the traceback in ``row.detail``).
     """
-    import psonurbs
-    from psonurbs.formats.cad import render_exports
-    from psonurbs.formats.clouds import read_cloud
+    start = time.perf_counter()
+    cloud = read_job(job)
+    if isinstance(cloud, FitOutcome):
+        return cloud
+    outcome = fit_cloud(job, cloud, formats, on_iteration, fit)
+    outcome.row.seconds = time.perf_counter() - start
+    return outcome
 
-    path = job.path
-    row = Row(str(path))
+
+def read_job(job: Job) -> Cloud | FitOutcome:
+    """The job's cloud as read, or the outcome of a cloud that cannot be read (its row)."""
     start = time.perf_counter()
     try:
-        points = read_cloud(path)
-        row.points = int(len(points))
+        return load_cloud(job.path)
+    except KeyboardInterrupt:
+        raise
+    except Exception as e:
+        return FitOutcome(_failed(Row(str(job.path)), job.path, e, time.perf_counter() - start), job.path.stem)
+
+
+def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
+              on_iteration: Callable[[int, float, float], None] | None = None,
+              fit: Callable | None = None) -> FitOutcome:
+    """Fit and render a cloud already read (the part a worker or a cluster runs); never
+    raises except on KeyboardInterrupt. ``row.seconds`` is the time taken here."""
+    import psonurbs
+    from psonurbs.formats.cad import render_exports
+
+    path = job.path
+    row = Row(str(path), points=int(len(cloud.points)))
+    start = time.perf_counter()
+    try:
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
-        result = fit(points, job.config, on_iteration=on_iteration)
+        result = fit(cloud.points, job.config, on_iteration=on_iteration)
+        notes = [*cloud.notes, *result.notes]
         surface = result.surface.to_dict()
         document = {
             "psonurbs_version": psonurbs.__version__,
@@ -76,7 +100,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
             "surface": surface,
             "metrics": result.metrics,
             "fit": result.info,
-            "notes": list(result.notes),
+            "notes": notes,
             "config": job.config.to_dict(),
         }
         vertices, triangles = result.surface.tessellate(*job.config.tessellation)
@@ -93,7 +117,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         row.max_error = _number(metrics.get("max_error"))
         row.rmse_relative = _number(metrics.get("rmse_relative"))
         row.max_error_relative = _number(metrics.get("max_error_relative"))
-        row.notes = list(result.notes)
+        row.notes = notes
         outputs = dict(document=document, vertices=vertices, triangles=triangles,
                        curve_header=list(result.curve_header), curve_rows=result.curve,
                        obj_extra=obj_extra, extra_files=extra_files)
@@ -101,16 +125,23 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         return FitOutcome(row, path.stem, outputs, dict(metrics))
     except KeyboardInterrupt:
         raise
-    except PsonurbsError as e:
-        message = str(e)
+    except Exception as e:
+        return FitOutcome(_failed(row, path, e, time.perf_counter() - start), path.stem)
+
+
+def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
+    """``row`` for a cloud that failed: ``bad-input`` for a PsonurbsError (the message
+    starting with the path), ``internal-error`` with the traceback for anything else."""
+    if isinstance(error, PsonurbsError):
+        message = str(error)
         prefix = f"{path}: "
         row.status, row.message = BAD_INPUT, message if message.startswith(prefix) else prefix + message
-    except Exception as e:  # a bug: reported in the row, the batch goes on
+    else:  # a bug: reported in the row, the batch goes on
         row.status = INTERNAL
-        row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        row.message = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
         row.detail = traceback.format_exc()
-    row.seconds = time.perf_counter() - start
-    return FitOutcome(row, path.stem)
+    row.seconds = seconds
+    return row
 
 
 def _number(x) -> float | None:
