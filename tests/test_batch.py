@@ -96,7 +96,7 @@ def test_summary_rows_for_good_bad_and_gated_clouds(tmp_path, fake_fit):
     assert float(rows[1]["seconds"]) >= 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["exit_code"] == 2
-    assert summary["counts"] == {"ok": 0, "gate-exceeded": 1, "bad-input": 1, "internal-error": 0}
+    assert summary["counts"] == {"ok": 0, "gate-exceeded": 1, "bad-input": 1, "worker-lost": 0, "internal-error": 0}
     assert summary["gate"] == {"max_rmse": 1e-4, "max_rmse_rel": None}
     assert [c["status"] for c in summary["clouds"]] == ["bad-input", "gate-exceeded"]
     assert summary["clouds"][1]["rmse"] == 1.234e-4

@@ -6,8 +6,9 @@
   sorted) and glob patterns into a list of cloud paths; an argument that names nothing
   usable becomes an error row instead.
 * :func:`run_batch` fits each :class:`~psonurbs.run.inputs.Job` (a path and its config),
-  in this process (``workers=1``) or in a pool of worker processes
-  (:mod:`psonurbs.run.workers`). A worker only computes: it returns the rendered outputs
+  in this process (``workers=1``), in a pool of worker processes
+  (:mod:`psonurbs.run.workers`) or on a dask cluster (:mod:`psonurbs.run.cluster`, the
+  clouds read here). A worker only computes: it returns the rendered outputs
   and the parent writes them (atomically, all-or-nothing per cloud,
   :func:`psonurbs.formats.outputs.write_fit_outputs`), so a worker can be stopped at any
   moment without leaving a partial file, and ``workers=N`` writes byte-identical files
@@ -28,9 +29,10 @@ from typing import Callable, Sequence
 from psonurbs.errors import PsonurbsError
 from psonurbs.formats.clouds import Cloud, load_cloud
 
+from .cluster import Scheduler
 from .gate import Gate
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, worker_lost_row
 from .workers import pool_run
 
 __all__ = ["FitOutcome", "fit_cloud", "fit_job", "read_job", "run_batch"]
@@ -200,14 +202,18 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
               workers: int = 1, gate: Gate = Gate(),
               on_row: Callable[[Row], None] | None = None,
               on_iteration: Callable[[int, float, float], None] | None = None,
-              fit: Callable | None = None) -> list[Row]:
+              fit: Callable | None = None, scheduler: Scheduler | None = None) -> list[Row]:
     """Fit every job; returns one row per job, in the order of ``jobs``.
 
     ``on_row(row)`` is called in this process as each cloud finishes (in completion
-    order). ``fit`` is the fitter (see :func:`fit_job`; with workers, it must be importable
-    by name). ``on_iteration`` is passed to the fit when it runs in this process
-    (``workers == 1``). KeyboardInterrupt propagates after the pool is stopped; the
-    outputs of the clouds already finished are complete, the others are not written.
+    order). ``fit`` is the fitter (see :func:`fit_job`; with workers or a cluster, it must
+    be importable by name). ``on_iteration`` is passed to the fit when it runs in this
+    process (``workers == 1``, no scheduler). With a ``scheduler``
+    (:class:`~psonurbs.run.cluster.Scheduler`) the fits run on a dask cluster instead of
+    ``workers`` processes (:mod:`psonurbs.run.cluster`); this process still reads the
+    clouds and writes every file. KeyboardInterrupt propagates after the pool is stopped
+    (the futures cancelled); the outputs of the clouds already finished are complete, the
+    others are not written.
     """
     out_dir = Path(out_dir)
     rows: list[Row | None] = [None] * len(jobs)
@@ -222,6 +228,12 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
 
     # the refusals are reported where they stand in the input order (workers == 1) or first
     pending_reports = {k: rows[k] for k in range(len(jobs)) if rows[k] is not None}
+    if scheduler is not None:
+        for k, row in pending_reports.items():
+            done(k, row)
+        _run_on_cluster(jobs, todo, scheduler, formats, fit, lambda k, row: done(k, row),
+                        lambda outcome: _finish(outcome, out_dir, gate))
+        return rows  # type: ignore[return-value]
     if workers <= 1 or len(todo) <= 1:
         for k in range(len(jobs)):
             if k in pending_reports:
@@ -241,3 +253,33 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
     pool_run(fit_job, {k: (jobs[k], tuple(formats), None, fit) for k in todo}, min(workers, len(todo)),
              lambda k, outcome: done(k, _finish(outcome, out_dir, gate)), lost)
     return rows  # type: ignore[return-value]
+
+
+def _run_on_cluster(jobs: Sequence[Job], todo: Sequence[int], scheduler: Scheduler, formats: Sequence[str],
+                    fit: Callable | None, done: Callable[[int, Row], None],
+                    finish: Callable[[FitOutcome], Row]) -> None:
+    """Read each cloud here as the cluster has room, fit it there, write it here."""
+    from .cluster import cluster_run, stop_if_cancelled
+
+    read_seconds: dict[int, float] = {}
+
+    def prepare(k: int) -> tuple | None:
+        start = time.perf_counter()
+        cloud = read_job(jobs[k])
+        if isinstance(cloud, FitOutcome):  # unreadable: its row, no task
+            done(k, cloud.row)
+            return None
+        read_seconds[k] = time.perf_counter() - start
+        return (jobs[k], cloud, tuple(formats), stop_if_cancelled, fit)
+
+    def result(k: int, outcome: FitOutcome) -> None:
+        outcome.row.seconds = (outcome.row.seconds or 0.0) + read_seconds.pop(k, 0.0)
+        done(k, finish(outcome))
+
+    def lost(k: int, how: str) -> None:
+        done(k, worker_lost_row(str(jobs[k].path), how))
+
+    def failed(k: int, message: str, trace: str) -> None:
+        done(k, Row(str(jobs[k].path), status=INTERNAL, message=message, detail=trace))
+
+    cluster_run(fit_cloud, todo, prepare, scheduler, result, lost, failed)
