@@ -91,7 +91,7 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
             # SIGINT ignored (inherited through spawn), so a Ctrl-C reaches this process only
             with dask.config.set({"distributed.scheduler.allowed-failures": 0}), _sigint_ignored():
                 cluster = distributed.LocalCluster(n_workers=scheduler.local_workers, threads_per_worker=1,
-                                                   processes=True, dashboard_address=None,
+                                                   processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                                    silence_logs=50)
             client = distributed.Client(cluster)
         elif scheduler.scheduler_file is not None:
