@@ -399,10 +399,16 @@ class MeshDistance:
     (the tests check it against a search over every triangle)."""
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, neighbours: int = 16):
-        self.vertices = np.asarray(vertices, float)
-        self.triangles = np.asarray(triangles, np.int64)
-        if len(self.triangles) == 0:
+        vertices = np.asarray(vertices, float)
+        if len(triangles) == 0:
             raise ValueError("mesh without triangles")
+        # one vertex per position: the collapsed pole row of a sphere's tessellation would
+        # otherwise fill the nearest neighbours with copies of one point
+        extent = float(np.ptp(vertices, axis=0).max()) or 1.0
+        keys = np.round((vertices - vertices.min(0)) / (1e-12 * extent)).astype(np.int64)
+        _, first, merged = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        self.vertices = vertices[first]
+        self.triangles = merged.reshape(-1)[np.asarray(triangles, np.int64)]
         self.tree = cKDTree(self.vertices)
         self.k = min(neighbours, len(self.vertices))
         order = np.argsort(self.triangles.ravel(), kind="stable")
