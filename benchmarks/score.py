@@ -393,10 +393,14 @@ def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.n
 
 
 class MeshDistance:
-    """Distance from points to a triangle mesh: the exact point-triangle distance to every
-    triangle around the point's ``neighbours`` nearest vertices. On the fine meshes scored
-    here (a tessellation, a ground-truth grid) the nearest triangle is always among them
-    (the tests check it against a search over every triangle)."""
+    """Exact distance from points to a triangle mesh.
+
+    First the exact point-triangle distance d to every triangle around the point's k
+    nearest (distinct) vertices. A triangle T that was not seen has all its corners
+    farther than d_k, the k-th neighbour's distance, and every point of T lies within
+    L_T / sqrt(3) of a corner (L_T: its longest edge), so T can only be nearer than d if
+    L_T > sqrt(3) (d_k - d): those few long triangles are then searched too (the tests
+    check the result against a search over every triangle)."""
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, neighbours: int = 16):
         vertices = np.asarray(vertices, float)
@@ -411,6 +415,11 @@ class MeshDistance:
         self.triangles = merged.reshape(-1)[np.asarray(triangles, np.int64)]
         self.tree = cKDTree(self.vertices)
         self.k = min(neighbours, len(self.vertices))
+        corners = self.vertices[self.triangles]
+        longest = np.max([np.linalg.norm(corners[:, i] - corners[:, j], axis=1)
+                          for i, j in ((0, 1), (1, 2), (2, 0))], axis=0)
+        self.by_length = np.argsort(-longest, kind="stable")  # the longest triangles first
+        self.lengths = longest[self.by_length]
         order = np.argsort(self.triangles.ravel(), kind="stable")
         counts = np.bincount(self.triangles.ravel(), minlength=len(self.vertices))
         starts = np.concatenate([[0], np.cumsum(counts)])
@@ -418,14 +427,32 @@ class MeshDistance:
         slot = np.arange(len(order)) - np.repeat(starts[:-1], counts)
         self.incident[np.repeat(np.arange(len(self.vertices)), counts), slot] = order // 3
 
-    def __call__(self, q: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, float)
-        out = np.empty(len(q))
-        for start in range(0, len(q), chunk):
-            part = q[start:start + chunk]
-            near = self.tree.query(part, k=self.k)[1].reshape(len(part), -1)
-            out[start:start + chunk] = self._distances(part, self.incident[near].reshape(len(part), -1))
-        return out
+        d = np.empty(len(q))
+        unsure = np.arange(len(q))
+        for k in (self.k, 6 * self.k):  # most points are settled by their 16 neighbours
+            k = min(k, len(self.vertices))
+            chunk = max(1, 32768 // k)
+            left = []
+            for start in range(0, len(unsure), chunk):
+                part = unsure[start:start + chunk]
+                dk, near = self.tree.query(q[part], k=k)
+                near, dk = near.reshape(len(part), -1), dk.reshape(len(part), -1)[:, -1]
+                d[part] = self._distances(q[part], self.incident[near].reshape(len(part), -1))
+                if k < len(self.vertices):
+                    left.append(part[self._long_enough(dk, d[part]) > 0])
+            unsure = np.concatenate(left) if left else np.zeros(0, np.int64)
+            if not len(unsure):
+                return d
+        dk = self.tree.query(q[unsure], k=min(6 * self.k, len(self.vertices)))[0].reshape(len(unsure), -1)[:, -1]
+        for i, count in zip(unsure, self._long_enough(dk, d[unsure])):  # the few left: their long triangles
+            d[i] = min(d[i], self._distances(q[i:i + 1], self.by_length[None, :count])[0])
+        return d
+
+    def _long_enough(self, dk: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """How many triangles (the longest first) could be nearer than d unseen."""
+        return np.searchsorted(-self.lengths, -np.sqrt(3.0) * (dk - d), side="left")
 
     def _distances(self, q: np.ndarray, candidates: np.ndarray) -> np.ndarray:
         """Least distance from each q[i] to the triangles candidates[i] (-1: none)."""

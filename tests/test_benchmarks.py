@@ -175,8 +175,11 @@ def test_scorer_reads_trimmed_surfaces(tmp_path):
     assert scorer.SurfaceDistance(s, trimmed=False)(above_hole)[0] < 1e-9
 
 
-def test_mesh_distance_is_the_least_over_every_triangle():
+@pytest.mark.parametrize("collapsed", [False, True], ids=["patch", "collapsed-row"])
+def test_mesh_distance_is_the_least_over_every_triangle(collapsed):
     vertices, triangles = open_surface().tessellate(31, 25)
+    if collapsed:  # the first row at one point, as a sphere's pole: 25 copies of a vertex
+        vertices[:25] = vertices[:25].mean(0)
     rng = np.random.default_rng(2)
     centre, size = vertices.mean(0), np.ptp(vertices, axis=0)
     probes = centre + (rng.random((300, 3)) - 0.5) * size * 1.4  # near and far, inside and beyond
