@@ -7,7 +7,7 @@ live here. Exit codes (also in ``psonurbs fit --help``):
     1    internal error (a bug in psonurbs)
     2    unusable input or config (usage errors too)
     3    a fit is above --max-rmse / --max-rmse-rel
-    4    a worker process died while fitting a cloud (killed, out of memory)
+    4    a worker process died or was lost while fitting a cloud (killed, out of memory)
     130  interrupted (Ctrl-C)
     143  terminated (SIGTERM)
 
@@ -30,6 +30,7 @@ from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
 from psonurbs.run.batch import preflight, run_batch
+from psonurbs.run.cluster import Scheduler, check_available
 from psonurbs.run.gate import Gate
 from psonurbs.run.inputs import Job, expand_inputs, jobs_from_inputs
 from psonurbs.run.summary import (
@@ -183,6 +184,10 @@ def cli() -> None:
               help="Override strategy.")
 @jobs_option("Fit clouds in N worker processes (one BLAS thread each); the files are identical "
              "to --jobs 1.")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Fit the clouds on a dask cluster instead: a scheduler address (tcp://host:8786), "
+                   "a scheduler file (scheduler.json), or local:N for N local worker processes. "
+                   "Needs the dask extra; the files are identical to --jobs 1.")
 @click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
               help="Also export the exact surface: 3dm (Rhino; needs rhino3dm), iges "
                    "(IGES 5.3 entity 128, STEM.igs), obj-nurbs (a 'cstype rat bspline' "
@@ -192,9 +197,9 @@ def cli() -> None:
 @click.pass_context
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
-        topology: str | None, strategy: str | None, jobs: int, formats: tuple[str, ...],
-        max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
-    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts).
+        topology: str | None, strategy: str | None, jobs: int, scheduler: str | None,
+        formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
+    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
 
     A CLOUD may be a file, a directory (its cloud files) or a quoted glob
     pattern ('scans/*.ply', 'scans/**/*.xyz'). For a cloud with file stem
@@ -220,6 +225,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       psonurbs fit data_samples/franke_noisy.ply -c data_samples/franke_noisy.yaml -o results/
       psonurbs fit scans/*.ply -c configs/patch.yaml -o results/ --seed 3 -q
       psonurbs fit scans/ -o results/ --jobs 4 --format iges --format obj-nurbs
+      psonurbs fit 'survey/*.laz' -o results/ --scheduler tcp://head-node:8786 -q
       psonurbs fit 'scans/**/*.ply' -o results/ --max-rmse-rel 1e-3 -q   # CI gate
       psonurbs fit dome.xyz -o results/ --topology sphere --particles 20 --iterations 100
 
@@ -233,14 +239,15 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
            (its files are written; the others are still fitted)
       4    a worker process died while fitting a cloud (with --jobs N:
-           killed, out of memory); the others are still fitted
+           killed, out of memory; with --scheduler: lost twice); the
+           others are still fitted
       130  interrupted (Ctrl-C); no half-written files are left
       143  terminated (SIGTERM, e.g. a CI timeout); no half-written files
 
     When several apply, the most severe wins: 143 > 130 > 1 > 4 > 2 > 3.
     """
     try:
-        code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
+        code = _fit_all(clouds, config_path, out_dir, quiet, jobs, scheduler, formats,
                         Gate(max_rmse, max_rmse_rel), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy))
@@ -253,11 +260,13 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
 
 
 def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, quiet: bool,
-             jobs: int, formats: tuple[str, ...], gate: Gate, fitter, overrides: dict) -> int:
+             jobs: int, scheduler: str | None, formats: tuple[str, ...], gate: Gate, fitter,
+             overrides: dict) -> int:
     try:
         config = load_config(config_path).with_overrides(**overrides)
         formats = check_formats(formats)
         preflight(config, str(config_path) if config_path else "the default config with the command-line options")
+        cluster = _cluster(scheduler, jobs)
     except ConfigError as e:
         _error(str(e))
         return EXIT_INPUT
@@ -267,7 +276,11 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
         _error(f"{out_dir}: cannot create the output directory ({e.strerror or e})")
         return EXIT_INPUT
     work = jobs_from_inputs(expand_inputs(clouds), config)
-    rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet, fitter)
+    try:
+        rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet, fitter, cluster)
+    except ConfigError as e:  # the scheduler cannot be reached, or its workers lack psonurbs
+        _error(str(e))
+        return EXIT_INPUT
     code = exit_code(rows)
     try:
         write_summary(out_dir, rows, gate)
@@ -277,12 +290,23 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
     return code
 
 
+def _cluster(scheduler: str | None, jobs: int) -> Scheduler | None:
+    """The parsed ``--scheduler`` (ConfigError: malformed, combined with --jobs, no dask)."""
+    if scheduler is None:
+        return None
+    if jobs > 1:
+        raise ConfigError("--scheduler and --jobs do not go together: the cluster's workers do the work")
+    parsed = Scheduler.parse(scheduler)
+    check_available()
+    return parsed
+
+
 def _progress_enabled(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty()
 
 
 def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jobs: int,
-                    gate: Gate, quiet: bool, fitter=None) -> list[Row]:
+                    gate: Gate, quiet: bool, fitter=None, scheduler: Scheduler | None = None) -> list[Row]:
     """Run the batch with the progress bars; report each cloud as it finishes."""
     from tqdm import tqdm
 
@@ -291,7 +315,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
     clouds_bar = tqdm(total=len(work), desc="clouds", unit="cloud", file=sys.stderr,
                       disable=not (show and several), leave=False, dynamic_ncols=True)
     swarm_bar = None
-    if len(work) == 1:
+    if len(work) == 1 and scheduler is None:
         swarm_bar = tqdm(total=work[0].config.swarm.iterations, desc=work[0].path.name, unit="it",
                          file=sys.stderr, disable=not show, leave=False, dynamic_ncols=True)
 
@@ -310,7 +334,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
     try:
         return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
-                         on_row=on_row, on_iteration=on_iteration, fit=fitter)
+                         on_row=on_row, on_iteration=on_iteration, fit=fitter, scheduler=scheduler)
     finally:
         if swarm_bar is not None:
             swarm_bar.close()
@@ -318,10 +342,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
 
 def _report(row: Row) -> None:
-    if row.status == "bad-input":
-        _error(row.message)
-        return
-    if row.status == WORKER_LOST:
+    if row.status in ("bad-input", WORKER_LOST):
         _error(row.message)
         return
     if row.status == "internal-error":

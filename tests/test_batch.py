@@ -53,7 +53,7 @@ def test_expand_reports_empty_directories_and_patterns(tmp_path):
     items = expand_inputs([tmp_path / "empty", str(tmp_path / "*.ply")])
     assert all(isinstance(item, Row) and item.status == "bad-input" for item in items)
     assert items[0].message == (f"{tmp_path / 'empty'}: directory has no point cloud files "
-                                "(.ply, .pcd, .xyz, .txt, .pts)")
+                                "(.ply, .pcd, .xyz, .txt, .pts, .las, .laz, .e57)")
     assert items[1].message == f"{tmp_path / '*.ply'}: no point cloud files match this pattern"
     jobs = jobs_from_inputs(items, FitConfig())
     rows = run_batch(jobs, tmp_path / "out")

@@ -35,7 +35,7 @@ def test_help_documents_every_exit_code_and_the_precedence():
     for needle in ["0 every cloud was fitted", "1 internal error", "2 unusable input or config",
                    "3 gate exceeded", "4 a worker process died", "130 interrupted", "143 terminated",
                    "most severe wins: 143 > 130 > 1 > 4 > 2 > 3",
-                   "--max-rmse X", "--max-rmse-rel X", "--jobs", "--format"]:
+                   "--max-rmse X", "--max-rmse-rel X", "--jobs", "--scheduler", "--format"]:
         assert needle in text, needle
 
 

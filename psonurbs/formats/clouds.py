@@ -1,4 +1,5 @@
-"""Reading point clouds (PLY, PCD, XYZ text) as (N, 3) arrays, refusing what is not one.
+"""Reading point clouds (PLY, PCD, XYZ text; LAS, LAZ, E57 through
+:mod:`psonurbs.formats.scans`) as (N, 3) arrays, refusing what is not one.
 
 Reading refuses anything that is not a usable cloud with an
 :class:`~psonurbs.errors.InputError` whose message starts with the file name
@@ -24,11 +25,12 @@ import numpy as np
 
 from psonurbs.errors import InputError, existing_file
 
-from .records import MAX_TEXT_BYTES, check_point_count, check_text_size, is_number
+from .records import MAX_TEXT_BYTES, Cloud, check_point_count, check_text_size, is_number
+from .scans import SCAN_SUFFIXES, read_scan
 
-__all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "read_cloud", "read_with_open3d"]
+__all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "Cloud", "load_cloud", "read_cloud", "read_with_open3d"]
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts")
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts") + SCAN_SUFFIXES
 _TEXT_SUFFIXES = (".xyz", ".txt", ".pts")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
@@ -36,11 +38,18 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 # ---- reading ---------------------------------------------------------------
 
 def read_cloud(path: str | os.PathLike, max_points: int | None = None) -> np.ndarray:
-    """Read a point cloud file as an ``(N, 3)`` float64 array.
+    """Read a point cloud file as an ``(N, 3)`` float64 array (see :func:`load_cloud`)."""
+    return load_cloud(path, max_points).points
 
-    ``.ply`` and ``.pcd`` are read with open3d; ``.xyz``, ``.txt`` and ``.pts``
-    are text with x, y, z in the first three columns, separated by whitespace or
-    commas (``#`` starts a comment; a ``.pts`` file may begin with a point count).
+
+def load_cloud(path: str | os.PathLike, max_points: int | None = None) -> Cloud:
+    """Read a point cloud file: its points as an ``(N, 3)`` float64 array, and notes.
+
+    ``.ply`` and ``.pcd`` are read by their headers (:mod:`.ply`, :mod:`.pcd`); ``.xyz``,
+    ``.txt`` and ``.pts`` are text with x, y, z in the first three columns, separated by
+    whitespace or commas (``#`` starts a comment; a ``.pts`` file may begin with a point
+    count); ``.las``, ``.laz`` and ``.e57`` need the optional extra ``scan``
+    (:mod:`psonurbs.formats.scans`: real coordinates, E57 scans merged by their poses).
     With ``max_points``, a PLY or PCD whose header declares more points is refused
     before its body is read (the caller knows what it can fit).
 
@@ -56,21 +65,27 @@ def read_cloud(path: str | os.PathLike, max_points: int | None = None) -> np.nda
         shown = f"'{path.suffix[:20]}'" if path.suffix else "no extension"
         raise InputError(f"{name}: unknown point cloud type ({shown}); "
                          f"expected one of {', '.join(CLOUD_SUFFIXES)}")
+    notes: tuple[str, ...] = ()
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
             size = os.fstat(f.fileno()).st_size
-        if suffix == ".ply":
+        if not head:
+            points = None
+        elif suffix in SCAN_SUFFIXES:
+            scan = read_scan(path, name)
+            points, notes = scan.points, scan.notes
+        elif suffix == ".ply":
             from .ply import read_ply
 
-            points = read_ply(path, name, head, size, max_points) if head else None
+            points = read_ply(path, name, head, size, max_points)
         elif suffix == ".pcd":
             from .pcd import read_pcd
 
-            points = read_pcd(path, name, head, size, max_points) if head else None
+            points = read_pcd(path, name, head, size, max_points)
         else:
             check_text_size(name, size, "a text cloud")
-            points = _read_text(path, name, suffix) if head else None
+            points = _read_text(path, name, suffix)
     except OSError as e:
         raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
     except MemoryError:
@@ -87,7 +102,7 @@ def read_cloud(path: str | os.PathLike, max_points: int | None = None) -> np.nda
     if n_bad:
         raise InputError(f"{name}: {n_bad} of {len(points)} points have non-finite coordinates "
                          f"({int(bad_nan.sum())} NaN, {int(bad_inf.sum())} infinite)")
-    return np.ascontiguousarray(points, dtype=np.float64)
+    return Cloud(np.ascontiguousarray(points, dtype=np.float64), notes)
 
 
 @contextlib.contextmanager

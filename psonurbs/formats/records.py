@@ -10,11 +10,22 @@ kilobyte, a negative count) is refused before reading.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from psonurbs.errors import InputError
+
+
+@dataclass(frozen=True)
+class Cloud:
+    """A cloud as read: ``points`` ``(N, 3)`` float64, and the reader's notes (E57: how
+    many scans were merged), which a fit reports with its own."""
+
+    points: np.ndarray
+    notes: tuple[str, ...] = ()
+
 
 MAX_TEXT_BYTES = 512 << 20  # a cloud parsed as text (XYZ, ASCII PLY or PCD): at most 512 MiB
 

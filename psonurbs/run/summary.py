@@ -91,7 +91,8 @@ def worker_lost_row(file: str, how: str) -> Row:
     hint = ("SIGKILL is what the kernel's out-of-memory killer sends; " if "SIGKILL" in how else "")
     return Row(file, status=WORKER_LOST,
                message=f"{file}: the worker process fitting it {how}; not fitted ({hint}the fit may need more "
-                       "memory than was free: retry it with fewer --jobs or a smaller net_size or tessellation)")
+                       "memory than was free: retry it with fewer --jobs, a smaller net_size or tessellation, or on a machine "
+                       "with more memory)")
 
 
 def exit_code(rows: Iterable[Row]) -> int:
