@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Big clouds: seconds and peak resident memory of every stage against the number of points.
 
-    python benchmarks/scale.py                              # ripples at 10k, 100k, 300k, 1M; bunny_front
-    python benchmarks/scale.py --points 10000 100000 --no-real
+    python benchmarks/scale.py --real SCANS/                # ripples at 10k, 100k, 300k, 1M; SCANS/bunny_front.ply
+    python benchmarks/scale.py --points 10000 100000        # ripples only
     python benchmarks/scale.py --json mine.json             # keep the figures ...
     python benchmarks/scale.py --plot docs/scale.png mine.json:this main.json:before   # ... and plot them
     python benchmarks/scale.py --reading 1000000            # read a binary PLY and an XYZ file of 1M points
@@ -59,13 +59,12 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-REAL = REPO.parent / "shared" / "data" / "real"
 SIGMA = 1e-3
 SEED = 14
 STAGES = ["read", "organise", "parametrise", "swarm", "polish", "refine", "write"]
 # function (module, name) -> (the stage it starts, the stage that starts when it returns)
 WRAPPED = {
-    ("psonurbs.formats.clouds", "read_cloud"): ("read", None),
+    ("psonurbs.run.batch", "load_cloud"): ("read", None),
     ("psonurbs.fitting.pipeline", "organise"): ("organise", None),
     ("psonurbs.fitting.pipeline", "parametrise_for"): ("parametrise", None),
     ("psonurbs.fitting.pipeline", "choose_topology"): ("parametrise", None),
@@ -239,7 +238,7 @@ def run_child(spec: dict) -> dict:
             write_binary_ply(cloud, ripples(spec["points"]))
             config = load_config(None).with_overrides(orders=[4, 4], net_size=[16, 16], topology="open")
         else:
-            cloud = REAL / f"{spec['kind']}.ply"
+            cloud = Path(spec["path"])
             config = load_config(REPO / "configs" / "auto.yaml")
         clock = StageClock()
         for (module, name), (starts, ends) in WRAPPED.items():
@@ -349,7 +348,8 @@ def plot(path: Path, sources: list[str]) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--points", type=int, nargs="*", default=[10_000, 100_000, 300_000, 1_000_000])
-    ap.add_argument("--no-real", action="store_true", help="leave out bunny_front")
+    ap.add_argument("--real", type=Path, help="a directory of real scans holding bunny_front.ply (the Stanford "
+                    "bunny's range image bun000; none ship with the repository)")
     ap.add_argument("--python", default=sys.executable, help="interpreter whose psonurbs is measured")
     ap.add_argument("--json", type=Path, help="save the figures here")
     ap.add_argument("--plot", type=Path, help="plot saved figures (FILE[:LABEL] ...) to this PNG")
@@ -367,8 +367,11 @@ def main(argv=None) -> int:
         reading(args.reading)
         return 0
     specs = [{"kind": "ripples", "name": "ripples", "points": n} for n in args.points]
-    if not args.no_real:
-        specs.append({"kind": "bunny_front", "name": "bunny_front"})
+    if args.real:
+        bunny = args.real / "bunny_front.ply"
+        if not bunny.is_file():
+            ap.error(f"{bunny}: no such file")
+        specs.append({"kind": "bunny_front", "name": "bunny_front", "path": str(bunny.resolve())})
     results = measure(specs, args.python)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

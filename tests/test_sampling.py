@@ -25,6 +25,10 @@ def test_the_subsample_holds_the_swarm_points_and_is_fixed(monkeypatch):
     big = sampling.big_cloud_sample(3000, swarm)
     assert len(big) == 500 and np.all(np.diff(big) > 0) and np.isin(swarm, big).all()
     np.testing.assert_array_equal(big, sampling.big_cloud_sample(3000, swarm))
+    # swarm_points above the subsample's size: the swarm's sample is the subsample
+    many = np.random.default_rng(1).permutation(3000)[:800]
+    np.testing.assert_array_equal(sampling.big_cloud_sample(3000, many), np.sort(many))
+    assert sampling.big_cloud_sample(800, np.arange(800)) is None
 
 
 @pytest.mark.parametrize("layout", [NetLayout((5, 4), (3, 2)), NetLayout((5, 4), (2, 2), (True, False)),

@@ -31,11 +31,13 @@ SAMPLE_SEED = 14  # the subsample is fixed: the same cloud gives the same fit
 
 def big_cloud_sample(n: int, swarm_sample: np.ndarray) -> np.ndarray | None:
     """Sorted indices of the subsample a cloud of n points is fitted on (the swarm's
-    sample and others drawn at random), or None if n is at most ``SUBSAMPLE_POINTS``."""
-    if n <= SUBSAMPLE_POINTS:
+    sample and others drawn at random, ``SUBSAMPLE_POINTS`` in all or the swarm's sample
+    alone if that is bigger), or None if that would be every point."""
+    size = max(SUBSAMPLE_POINTS, len(swarm_sample))
+    if n <= size:
         return None
     others = np.setdiff1d(np.arange(n), swarm_sample)
-    extra = np.random.default_rng(SAMPLE_SEED).choice(others, SUBSAMPLE_POINTS - len(swarm_sample), replace=False)
+    extra = np.random.default_rng(SAMPLE_SEED).choice(others, size - len(swarm_sample), replace=False)
     return np.sort(np.concatenate([swarm_sample, extra]))
 
 
