@@ -10,6 +10,9 @@ direction needs data all the way round; a sphere needs data near both poles; a
 cylinder needs rims, not ends that close to a point) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
 leave-one-out error. Every candidate's score or reason for rejection is reported.
+The open candidate's first parameters follow ``parametrisation`` (plane or intrinsic,
+:mod:`psonurbs.fitting.open_parameters`), intrinsic ones corrected from coarse to fine
+(:mod:`psonurbs.fitting.coarse_to_fine`).
 """
 from __future__ import annotations
 
@@ -19,7 +22,9 @@ import numpy as np
 
 from psonurbs.geometry.net import NetLayout
 
+from .coarse_to_fine import coarse_to_fine
 from .hybrid import KnotWeightSearch
+from .open_parameters import parametrise_open_patch
 from .parametrise import Parametrisation, parametrise
 from .solve import RegularisedLeastSquares
 
@@ -82,23 +87,36 @@ def oriented(par: Parametrisation, layout: NetLayout, points: np.ndarray, config
 
 
 def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, config) -> Parametrisation:
-    """First parameters of all points for a given topology (orientation settled on ``sample``)."""
-    par = parametrise(points, topology)
+    """First parameters of all points for a given topology (orientation settled on
+    ``sample``); intrinsic ones of an open patch corrected from coarse to fine."""
+    par = parametrise_open_patch(points, config.parametrisation) if topology == "open" else parametrise(points, topology)
     layout = layout_for(topology, config.net_size, config.degrees)
     if oriented(Parametrisation(par.uv[sample], par.info), layout, points[sample], config).info.get("swapped"):
         par = par.swapped()
+    if par.info["method"] == "intrinsic":
+        uv, levels = coarse_to_fine(layout, points, par.uv, config.smoothing)
+        par = Parametrisation(uv, {**par.info, "coarse_to_fine": levels})
     return par
 
 
 def choose_topology(points: np.ndarray, sample: np.ndarray, config,
                     log: Callable[[str], None] | None = None) -> tuple[str, Parametrisation, dict]:
-    """The topology that fits the cloud best, its parametrisation and every candidate's score."""
-    scores, best = {}, (np.inf, None, None)
-    for topology in LAYOUTS:
+    """The topology that fits the cloud best, its parametrisation and every candidate's score.
+
+    A cloud that some closed topology supports (data all the way round) is not a disc:
+    unrolled, a tube becomes an annulus whose hole an open patch would have to cap. So
+    with ``parametrisation: auto`` its open candidate is the plane projection; the
+    intrinsic one is tried only on clouds that no closed topology supports.
+    """
+    scores, candidates = {}, {}
+    for topology in (*[t for t in LAYOUTS if t != "open"], "open"):
         if topology == "sphere" and config.net_size[1] < 3:
             scores[topology] = {"rejected": "net_size along v is below 3"}
             continue
-        par = parametrise_for(points, sample, topology, config)
+        open_config = config
+        if topology == "open" and candidates and config.parametrisation == "auto":
+            open_config = config.with_overrides(parametrisation="plane")
+        par = parametrise_for(points, sample, topology, open_config)
         reason = None if topology == "open" else unsupported(par, points, topology)
         if reason is not None:
             scores[topology] = {"rejected": reason}
@@ -106,6 +124,8 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
         layout = layout_for(topology, config.net_size, config.degrees)
         error = classical_error(layout, Parametrisation(par.uv[sample], par.info), points[sample], config)
         scores[topology] = {"classical_error_relative": float(error)}
-        if error < best[0]:
-            best = (error, topology, par)
-    return best[1], best[2], scores
+        if topology == "open":
+            scores[topology]["parametrisation"] = par.info["method"]
+        candidates[topology] = (error, par)
+    best = min(candidates, key=lambda t: (candidates[t][0], list(LAYOUTS).index(t)))
+    return best, candidates[best][1], {t: scores[t] for t in LAYOUTS}
