@@ -1,7 +1,8 @@
 """What happened to each cloud of a run: statuses, exit codes, the summary files.
 
-Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0),
-``gate-exceeded`` (3), ``bad-input`` (2), ``internal-error`` (1); interrupted runs
+Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0), ``suspect``
+(0: fitted, files written, but a self-check failed; with ``--fail-suspect`` the gate turns
+it into ``gate-exceeded``), ``gate-exceeded`` (3), ``bad-input`` (2), ``internal-error`` (1); interrupted runs
 exit with 130 (Ctrl-C) or 143 (SIGTERM). When several apply the most severe wins:
 143 > 130 > 1 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
 ``summary.json`` atomically, one row per cloud in the order given.
@@ -21,7 +22,7 @@ from .gate import Gate
 
 __all__ = [
     "Row", "exit_code", "write_summary", "render_summary_csv", "render_summary_json",
-    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "GATE", "BAD_INPUT", "INTERNAL",
+    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "SUSPECT", "GATE", "BAD_INPUT", "INTERNAL",
     "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_INTERRUPTED", "EXIT_TERMINATED",
     "Terminated", "raise_terminated",
 ]
@@ -44,8 +45,8 @@ def raise_terminated(signum, frame) -> None:
     raise Terminated()
 
 
-OK, GATE, BAD_INPUT, INTERNAL = "ok", "gate-exceeded", "bad-input", "internal-error"
-_STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, INTERNAL: EXIT_INTERNAL}
+OK, SUSPECT, GATE, BAD_INPUT, INTERNAL = "ok", "suspect", "gate-exceeded", "bad-input", "internal-error"
+_STATUS_EXIT = {OK: EXIT_OK, SUSPECT: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, INTERNAL: EXIT_INTERNAL}
 _SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
 
 SUMMARY_COLUMNS = ["file", "points", "topology", "net", "rmse", "max_error", "rmse_relative",
@@ -69,6 +70,7 @@ class Row:
     status: str = OK
     message: str = ""
     notes: list[str] = field(default_factory=list)  # the fit's notes (in message too)
+    warnings: list[str] = field(default_factory=list)  # the fit's failed self-checks (in notes too)
     detail: str = ""  # traceback of an internal error; never written
 
     def summary(self) -> dict:
@@ -113,7 +115,7 @@ def render_summary_json(rows: Sequence[Row], gate: Gate = Gate()) -> str:
         if d["seconds"] is not None:
             d["seconds"] = round(d["seconds"], 3)
         clouds.append(d)
-    counts = {s: sum(r.status == s for r in rows) for s in (OK, GATE, BAD_INPUT, INTERNAL)}
+    counts = {s: sum(r.status == s for r in rows) for s in (OK, SUSPECT, GATE, BAD_INPUT, INTERNAL)}
     document = {"psonurbs_version": psonurbs.__version__, "exit_code": exit_code(rows),
                 "counts": counts, "gate": gate.as_dict(), "clouds": clouds}
     return json.dumps(document, indent=2, allow_nan=False) + "\n"
