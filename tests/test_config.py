@@ -130,6 +130,8 @@ def test_every_sample_config_loads(path):
      "cfg.yaml: unknown config key 'swarm.partciles' (known: particles, iterations, inertia, "
      "c1, c2, seed); did you mean 'swarm.particles'?"),
     ("net_sise: [5, 5]\n", "cfg.yaml: unknown config key 'net_sise'"),
+    ("parametrisation: isomap\n",
+     "cfg.yaml: config key 'parametrisation': expected one of auto, plane, intrinsic, got 'isomap'"),
     ("swarm:\n  particles: -3\n",
      "cfg.yaml: config key 'swarm.particles': expected a positive integer, got -3"),
     ("swarm:\n  particles: true\n",

@@ -22,6 +22,7 @@ import numpy as np
 
 from psonurbs.geometry.net import NetLayout
 
+from .checks import check_fit
 from .coarse_to_fine import coarse_to_fine
 from .hybrid import KnotWeightSearch
 from .open_parameters import parametrise_open_patch
@@ -99,33 +100,42 @@ def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, confi
     return par
 
 
+def classical_surface(layout: NetLayout, par: Parametrisation, points: np.ndarray, config):
+    """The classical fit's surface (uniform knots, unit weights, least squares)."""
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
+    weights = np.ones(layout.n_free)
+    return layout.surface(solver.solve(layout.rows(par.uv, weights), points), weights)
+
+
 def choose_topology(points: np.ndarray, sample: np.ndarray, config,
                     log: Callable[[str], None] | None = None) -> tuple[str, Parametrisation, dict]:
     """The topology that fits the cloud best, its parametrisation and every candidate's score.
 
-    A cloud that some closed topology supports (data all the way round) is not a disc:
-    unrolled, a tube becomes an annulus whose hole an open patch would have to cap. So
-    with ``parametrisation: auto`` its open candidate is the plane projection; the
-    intrinsic one is tried only on clouds that no closed topology supports.
+    A candidate whose classical surface fails a self-check (:mod:`psonurbs.fitting.checks`)
+    is rejected: an open patch laid over a tube caps its end and folds there, a torus
+    forced onto a curled sheet flaps far outside it, both while passing near every
+    point. If every candidate fails, the least error is kept all the same.
     """
-    scores, candidates = {}, {}
-    for topology in (*[t for t in LAYOUTS if t != "open"], "open"):
+    scores, candidates, suspect = {}, {}, {}
+    for topology in LAYOUTS:
         if topology == "sphere" and config.net_size[1] < 3:
             scores[topology] = {"rejected": "net_size along v is below 3"}
             continue
-        open_config = config
-        if topology == "open" and candidates and config.parametrisation == "auto":
-            open_config = config.with_overrides(parametrisation="plane")
-        par = parametrise_for(points, sample, topology, open_config)
+        par = parametrise_for(points, sample, topology, config)
         reason = None if topology == "open" else unsupported(par, points, topology)
         if reason is not None:
             scores[topology] = {"rejected": reason}
             continue
         layout = layout_for(topology, config.net_size, config.degrees)
-        error = classical_error(layout, Parametrisation(par.uv[sample], par.info), points[sample], config)
+        on_sample = Parametrisation(par.uv[sample], par.info)
+        error = classical_error(layout, on_sample, points[sample], config)
         scores[topology] = {"classical_error_relative": float(error)}
         if topology == "open":
             scores[topology]["parametrisation"] = par.info["method"]
-        candidates[topology] = (error, par)
-    best = min(candidates, key=lambda t: (candidates[t][0], list(LAYOUTS).index(t)))
-    return best, candidates[best][1], {t: scores[t] for t in LAYOUTS}
+        warnings = check_fit(classical_surface(layout, on_sample, points[sample], config), points[sample]).warnings
+        (suspect if warnings else candidates)[topology] = (error, par)
+        if warnings:
+            scores[topology]["rejected"] = "suspect: " + "; ".join(warnings)
+    pool = candidates or suspect
+    best = min(pool, key=lambda t: (pool[t][0], list(LAYOUTS).index(t)))
+    return best, pool[best][1], scores
