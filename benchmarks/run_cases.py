@@ -55,7 +55,7 @@ def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path, exe:
     doc = json.loads((out / f"{case}.json").read_text())
     result["topology"] = doc["topology"]
     result["param"] = doc["fit"].get("parametrisation", {}).get("method")
-    result["suspect"] = doc["metrics"].get("suspect")
+    result["suspect"] = {True: "SUSPECT", False: "no"}.get(doc["metrics"].get("suspect"))  # None: not checked
     seams = [result[k] for k in ("seam_u", "seam_v") if k in result]
     result["seam"] = max(seams) if seams else None
     if result.get("claimed_rmse") and result.get("rmse"):

@@ -217,24 +217,33 @@ class RigidProblem:
         m, e = len(self.part), len(self.src)
         self.incidence = sp.csr_array((np.r_[-np.ones(e), np.ones(e)],
                                        (np.r_[np.arange(e), np.arange(e)], np.r_[self.src, self.dst])), shape=(e, m))
+        self.gather = sp.csr_array((np.ones(e), (self.src, np.arange(e))), shape=(m, e))  # sums edges per source
         laplacian = (self.incidence.T @ (self.incidence * self.w[:, None])).tocsc()
         self.factor = splu(laplacian[1:, 1:].tocsc())  # u_0 = 0 fixes the translation
 
     def maps(self, uv: np.ndarray) -> np.ndarray:
         """(m, 2, 2) each point's ``S_i = sum_j w_ij (u_j - u_i) t_ij^T``."""
-        s = np.zeros((len(self.part), 2, 2))
-        np.add.at(s, self.src, np.einsum("e,ea,eb->eab", self.w, uv[self.dst] - uv[self.src], self.t))
-        return s
+        d = (uv[self.dst] - uv[self.src]) * self.w[:, None]
+        per_edge = np.column_stack([d[:, 0] * self.t[:, 0], d[:, 0] * self.t[:, 1],
+                                    d[:, 1] * self.t[:, 0], d[:, 1] * self.t[:, 1]])
+        return (self.gather @ per_edge).reshape(-1, 2, 2)
 
     def local(self, uv: np.ndarray) -> tuple[float, np.ndarray]:
-        """The best rotations for ``uv`` (m, 2, 2) and the energy with them."""
-        rotations = nearest_rotations(self.maps(uv))
-        r = uv[self.dst] - uv[self.src] - np.einsum("eab,eb->ea", rotations[self.src], self.t)
-        return float(np.sum(self.w * np.sum(r * r, axis=1))), rotations
+        """The best rotations for ``uv`` (m, 2, 2) and the energy with them. With the
+        rotation nearest to S_i, ``sum_j w_ij (u_j - u_i) . R_i t_ij = tr(R_i^T S_i)`` is
+        ``|(S_00 + S_11, S_10 - S_01)|``, so the energy needs no per-edge rotation."""
+        s = self.maps(uv)
+        d = uv[self.dst] - uv[self.src]
+        aligned = np.hypot(s[:, 0, 0] + s[:, 1, 1], s[:, 1, 0] - s[:, 0, 1])
+        energy = float(np.sum(self.w * (np.sum(d * d, axis=1) + np.sum(self.t * self.t, axis=1)))
+                       - 2.0 * np.sum(aligned))
+        return energy, nearest_rotations(s)
 
     def solve(self, rotations: np.ndarray) -> np.ndarray:
         """The positions that best keep every edge as ``R_i t_ij``: ``L U = A^T W (R t)``."""
-        rhs = self.incidence.T @ (self.w[:, None] * np.einsum("eab,eb->ea", rotations[self.src], self.t))
+        c, s = rotations[self.src, 0, 0], rotations[self.src, 1, 0]
+        target = np.column_stack([c * self.t[:, 0] - s * self.t[:, 1], s * self.t[:, 0] + c * self.t[:, 1]])
+        rhs = self.incidence.T @ (self.w[:, None] * target)
         return np.vstack([np.zeros((1, 2)), self.factor.solve(rhs[1:])])
 
 
