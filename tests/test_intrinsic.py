@@ -33,11 +33,11 @@ def cylinder_section(n=3000, degrees=250.0, noise=0.0, seed=0, density=None):
     return pts, np.column_stack([a, z])
 
 
-def twisted_ribbon(n=2000, degrees=150.0, seed=1):
+def twisted_ribbon(n=2000, degrees=150.0, seed=1, noise=0.0):
     rng = np.random.default_rng(seed)
     u, w = rng.random(n), rng.random(n) - 0.5
     t = np.radians(degrees) * u
-    return np.column_stack([3.0 * u, w * np.cos(t), w * np.sin(t)])
+    return np.column_stack([3.0 * u, w * np.cos(t), w * np.sin(t)]) + rng.normal(0.0, noise, (n, 3))
 
 
 def spherical_cap(n=3000, polar_degrees=90.0, seed=2):
@@ -154,6 +154,7 @@ def test_auto_keeps_the_plane_on_a_height_field(name, cloud):
     ("curl 200 degrees, uneven density", lambda: cylinder_section(degrees=200.0, density="graded")[0], "edge-on"),
     ("hemisphere", spherical_cap, "edge-on"),
     ("twisted ribbon", twisted_ribbon, "fills"),
+    ("strip twisted 90 degrees, noisy", lambda: twisted_ribbon(n=4000, degrees=90.0, noise=1e-3), "fills"),
 ])
 def test_auto_lays_flat_what_no_plane_sees_as_a_height_field(name, cloud, why):
     par = parametrise_open_patch(cloud(), "auto")
