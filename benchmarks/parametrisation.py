@@ -227,7 +227,7 @@ def fit() -> None:
         graph = intrinsic.surface_graph(pts[intrinsic.embedding_sample(len(pts))])
         assert len(graph.points) == len(pts)  # both cases have under EMBEDDED_POINTS points: all are embedded
         for method, q in starts(graph, pts).items():
-            uv0 = q if method == "plane" else unit_square(q, extent=graph.component)
+            uv0 = q if method == "plane" else unit_square(q, reference=q[graph.component])
             for ladder in (False, True):
                 begin = time.perf_counter()
                 uv = coarse_to_fine(layout, pts, uv0, config.smoothing)[0] if ladder else uv0

@@ -7,8 +7,10 @@ parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the p
 1. **Graph** (:func:`surface_graph`): the k nearest neighbours of every point, a tangent
    frame ``(e1, e2, n)`` by PCA of each neighbourhood, and the normals oriented
    consistently (propagated along the minimum spanning tree of ``1 - |n_i . n_j|``,
-   Hoppe et al. 1992). Each edge seen from its source, ``t_ij = [e1_i, e2_i] (x_j - x_i)``,
-   is the neighbour's offset in the source's tangent plane.
+   Hoppe et al. 1992). The edges are the mutual neighbours (each among the other's k
+   nearest): a stray point off the surface keeps none and falls out of the graph's
+   largest part, which alone is embedded. Each edge seen from its source,
+   ``t_ij = [e1_i, e2_i] (x_j - x_i)``, is the neighbour's offset in the source's tangent plane.
 2. **Geodesic start** (:func:`geodesic_embedding`): landmark Isomap (de Silva &
    Tenenbaum 2003). Graph distances (Dijkstra) from ``LANDMARKS`` farthest-point
    landmarks, classical MDS of the landmarks, every point placed from its squared
@@ -21,11 +23,15 @@ parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the p
 
    over the plane positions U (M, 2) and a rotation R_i per point, alternately: each
    R_i is the rotation nearest to ``S_i = sum_j w_ij (u_j - u_i) t_ij^T`` (closed form in
-   2D), then U solves the graph Laplacian system ``L U = A^T W (R t)`` (factored once).
+   2D), then U solves the graph Laplacian system ``L U = A^T W (R t)`` (factored once);
+   the rounds are Anderson-mixed (plain ones leave 1% of bending after 30 rounds).
    The edges' lengths are kept, so a developable surface is unrolled isometrically;
    elsewhere (a twisted strip, a cap) the stretch is spread evenly.
 4. **All points** (:func:`extended`): a point off the sample takes its nearest sample
-   point's position plus its offset in that point's frame, rotated by its R_i.
+   point's position plus its offset in that point's frame, rotated by its R_i (the
+   offset cut to the neighbourhood's reach, so a stray is not flung out).
+
+Cost: O(N log M) for the nearest sample point of every point, the rest on the M <= ``EMBEDDED_POINTS``.
 
 The plane coordinates are then scaled to the unit square along the rectangle they fill
 best, as a plane projection is (:func:`psonurbs.fitting.parametrise.unit_square`).
@@ -322,8 +328,7 @@ def parametrise_intrinsic(points: np.ndarray, graph: SurfaceGraph | None = None,
         graph = surface_graph(points[embedding_sample(len(points))])
     flattening = rigid_embedding(graph, geodesic_embedding(graph), rounds)
     flat = extended(graph, flattening.positions, flattening.rotations, points)
-    _, near = cKDTree(points).query(graph.points[graph.component])
-    uv = unit_square(flat, extent=near)  # the rectangle of the embedded points, not of strays
+    uv = unit_square(flat, reference=flattening.positions[graph.component])  # the embedded points' rectangle
     return Parametrisation(uv, {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
                                 "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds,
                                 "folded_share": reversed_share(graph, flattening.positions)})

@@ -62,11 +62,11 @@ def cell_counts(uv: np.ndarray, cells: int) -> np.ndarray:
     return np.bincount(idx[:, 0] * cells + idx[:, 1], minlength=cells * cells)
 
 
-def unit_square(q: np.ndarray, extent: np.ndarray | None = None) -> np.ndarray:
+def unit_square(q: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
     """Plane coordinates (N, 2) scaled onto [0, 1]^2 along the sides of the minimum-area
-    rectangle around them (or around the rows ``extent`` only: the others are clipped),
+    rectangle around them (or around the ``reference`` points: the others are clipped),
     u along the longer side."""
-    rect = q if extent is None else q[extent]
+    rect = q if reference is None else reference
     turn = min_area_rectangle(rect).T
     q, rect = q @ turn, rect @ turn
     lo, span = rect.min(axis=0), np.ptp(rect, axis=0)
