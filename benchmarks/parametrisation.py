@@ -2,11 +2,11 @@
 """The intrinsic parametrisation of open surfaces: its cost, and the alternatives measured.
 
     python benchmarks/parametrisation.py                 # all three parts
-    python benchmarks/parametrisation.py --parts cost
+    python benchmarks/parametrisation.py --parts cost --scans SCANS/   # and a real scan's cost
 
 cost          seconds of ``parametrise_intrinsic`` (graph, geodesic start, rigid flattening,
               extension to all points) on cylinder sections of 10k to 40k points, and on
-              the 40k-point bunny_front scan of ../shared/data/real
+              the 40k-point bunny_front scan (SCANS/bunny_front.ply, with --scans)
 distortion    first parameters of shapes with known intrinsic coordinates (developable:
               arc length and height; the twisted strip and the hemisphere only for folds):
               the RMS residual of the best affine map from them to the truth (of the
@@ -26,13 +26,13 @@ fit           the public curl_sheet and twisted_ribbon: each start taken through
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from run_cases import SHARED
+from cases import CASES
 from scipy.sparse.linalg import spsolve
 
 from psonurbs.config import load_config
@@ -44,8 +44,6 @@ from psonurbs.fitting.parametrise import parametrise_open, unit_square
 from psonurbs.fitting.polish import polish
 from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.fitting.topology import layout_for
-
-REAL = SHARED.parent / "data" / "real"
 
 
 def section(n, degrees, noise=0.0, graded=False, seed=0):
@@ -88,13 +86,13 @@ def timed(f, *args):
     return out, time.perf_counter() - start
 
 
-def cost() -> None:
+def cost(scans: Path | None) -> None:
     print("| cloud | points | graph s | geodesic start s | rigid s | extension + unit square s | total s "
           "| total CPU s | plane projection s (for scale) |")
     print("|---|---|---|---|---|---|---|---|---|")
     clouds = [(f"cylinder section 250 deg, {n // 1000}k", section(n, 250.0, 1e-3)[0]) for n in (10000, 20000, 40000)]
-    bunny = REAL / "bunny_front.ply"
-    if bunny.exists():
+    bunny = scans / "bunny_front.ply" if scans else None
+    if bunny is not None and bunny.exists():
         from psonurbs.formats.clouds import read_cloud
 
         clouds.append(("bunny_front (real scan)", read_cloud(bunny)))
@@ -207,22 +205,14 @@ def distortion() -> None:
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 
-def load_case(name: str) -> np.ndarray:
-    spec = importlib.util.spec_from_file_location("cases", SHARED / "cases.py")
-    cases = importlib.util.module_from_spec(spec)
-    sys.modules["cases"] = cases
-    spec.loader.exec_module(cases)
-    return cases.make_points(cases.CASES[name]), cases.CASES[name]
-
-
 def fit() -> None:
     print("| case | start | ladder | rmse (of the diagonal) | over noise | suspect | seconds |")
     print("|---|---|---|---|---|---|---|")
     for case in ("curl_sheet", "twisted_ribbon"):
-        raw, spec = load_case(case)
-        cloud = organise(raw, (4, 4))
+        spec = CASES[case]
+        cloud = organise(spec.points(), (4, 4))
         pts = cloud.points
-        config = load_config(None).with_overrides(orders=spec.config["orders"], net_size=spec.config["net_size"])
+        config = load_config(None).with_overrides(orders=spec.orders, net_size=spec.net)
         layout = layout_for("open", config.net_size, config.degrees)
         graph = intrinsic.surface_graph(pts[intrinsic.embedding_sample(len(pts))])
         assert len(graph.points) == len(pts)  # both cases have under EMBEDDED_POINTS points: all are embedded
@@ -243,10 +233,11 @@ def fit() -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--parts", nargs="*", default=["cost", "distortion", "fit"], choices=["cost", "distortion", "fit"])
+    ap.add_argument("--scans", type=Path, help="a directory of real scans holding bunny_front.ply (for the cost)")
     args = ap.parse_args(argv)
     for part in args.parts:
         print(f"\n## {part}\n")
-        {"cost": cost, "distortion": distortion, "fit": fit}[part]()
+        {"cost": lambda: cost(args.scans), "distortion": distortion, "fit": fit}[part]()
     return 0
 
 

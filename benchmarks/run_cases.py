@@ -3,11 +3,13 @@
 
     python benchmarks/run_cases.py                    # every case, swarm and classical
     python benchmarks/run_cases.py --cases franke_grid wave_graded --variants swarm
+    python benchmarks/run_cases.py --cases torus --seed 3   # a fresh draw of a case
     python benchmarks/run_cases.py --variants swarm --baseline /path/to/other/bin/psonurbs
 
-The cases and the scorer are ``../shared/bench/cases.py`` and ``score.py``. Each case
-is fitted with its own YAML by the installed ``psonurbs`` command, timed (wall clock,
-whole command), then scored; figures are relative to the cloud's bounding-box diagonal.
+The cases come from ``benchmarks/cases.py`` and the figures from ``benchmarks/score.py``
+(which re-evaluates the JSON with scipy, nothing of psonurbs). Each case is fitted with
+its own YAML by the installed ``psonurbs`` command, timed (wall clock, whole command),
+then scored; figures are relative to the cloud's bounding-box diagonal.
 
 With ``--baseline EXE`` every case and variant is also fitted by that other build
 (say, a snapshot of main), right before this one: rows ``main`` and ``this`` alternate,
@@ -30,10 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
-OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder", "franke_outliers",
-              "franke_outliers10", "step_bump", "plate_holes", "curl_sheet", "twisted_ribbon"]
-CLOSED_CASES = ["seed_sphere169", "cylinder", "sphere_noisy", "torus"]
+from cases import CASES, write
+from score import score
+
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
 COLUMNS = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "seam", "pole_spread",
@@ -49,9 +50,7 @@ def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path, exe:
     seconds = time.perf_counter() - start
     if run.returncode != 0:
         return {"error": (run.stderr or run.stdout).strip().splitlines()[-1], "seconds": seconds}
-    score = subprocess.run([sys.executable, str(SHARED / "score.py"), str(cases_dir / f"{case}.ply"), str(out),
-                            "--gt", str(cases_dir / f"{case}.gt.npz")], capture_output=True, text=True)
-    result = json.loads(score.stdout.strip().splitlines()[-1])
+    result = score(cases_dir / f"{case}.ply", out, cases_dir / f"{case}.gt.npz")
     doc = json.loads((out / f"{case}.json").read_text())
     result["topology"] = doc["topology"]
     result["param"] = doc["fit"].get("parametrisation", {}).get("method")
@@ -74,7 +73,9 @@ def cell(value) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="*", default=OPEN_CASES + CLOSED_CASES)
+    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), metavar="CASE",
+                    help="cases to run (default: all; see benchmarks/cases.py --list)")
+    ap.add_argument("--seed", type=int, default=0, help="cloud seed: 0 the public clouds, others fresh draws")
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"], choices=list(VARIANT_ARGS))
     ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
     ap.add_argument("--baseline", metavar="EXE", help="another psonurbs executable to fit every case with too")
@@ -82,8 +83,9 @@ def main(argv=None) -> int:
     builds = ([("main", args.baseline)] if args.baseline else []) + [("this", "psonurbs")]
     root = args.out or Path(tempfile.mkdtemp(prefix="psonurbs-bench-"))
     cases_dir = root / "cases"
-    subprocess.run([sys.executable, str(SHARED / "cases.py"), str(cases_dir), "--only", *args.cases],
-                   check=True, capture_output=True)
+    cases_dir.mkdir(parents=True, exist_ok=True)
+    for case in args.cases:
+        write(CASES[case], cases_dir, args.seed)
     header = ["case", "variant", *(["build"] if args.baseline else []), *COLUMNS, "noise", "seconds"]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))

@@ -8,8 +8,8 @@ Clouds a plane does or does not see as a height field, clean and noisy, with une
 density, sparse edges and a few strays: twisted strips, shells whose sides turn vertical,
 a hemisphere, a cone section, a curl with a gap, a saddle and a shallow cap. Each is
 written as PLY with a dense mesh of its true surface (the ``.gt.npz`` of
-``../shared/bench/cases.py``), fitted with ``psonurbs fit`` (a smaller swarm than the
-public cases: ``--particles``, ``--iterations``) and scored by ``../shared/bench/score.py``.
+``benchmarks/cases.py``), fitted with ``psonurbs fit`` (a smaller swarm than the
+public cases: ``--particles``, ``--iterations``) and scored by ``benchmarks/score.py``.
 With ``--baseline EXE`` each cloud is fitted by that other build first (rows ``main`` /
 ``this``). Figures are relative to the bounding-box diagonal.
 """
@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from run_cases import SHARED, cell
+from run_cases import cell
+from score import score
 
 COLUMNS = ["param", "rmse", "inlier_rmse", "truth_rms", "truth_max", "cover_max", "overhang", "outliers", "suspect"]
 
@@ -156,9 +157,7 @@ def fit_and_score(cloud: Cloud, files, out: Path, exe: str, swarm: list[str]) ->
     seconds = time.perf_counter() - start
     if run.returncode != 0:
         return {"error": (run.stderr or run.stdout).strip().splitlines()[-1], "seconds": seconds}
-    score = subprocess.run([sys.executable, str(SHARED / "score.py"), str(ply), str(out), "--gt", str(gt)],
-                           capture_output=True, text=True)
-    result = json.loads(score.stdout.strip().splitlines()[-1])
+    result = score(ply, out, gt)
     doc = json.loads((out / f"{cloud.name}.json").read_text())
     result.update(param=doc["fit"].get("parametrisation", {}).get("method"), outliers=doc["metrics"].get("outliers"),
                   suspect={True: "SUSPECT", False: "no"}.get(doc["metrics"].get("suspect")), seconds=seconds)
