@@ -2,7 +2,7 @@
 """Fit open surfaces that are not in the public benchmark, and score them against their truth.
 
     python benchmarks/unseen.py                       # every cloud, this build
-    python benchmarks/unseen.py --baseline /path/to/other/bin/psonurbs --clouds shell cone220
+    python benchmarks/unseen.py --baseline /path/to/other/bin/psonurbs --clouds tub cone220
 
 Clouds a plane does or does not see as a height field, clean and noisy, with uneven
 density, sparse edges and a few strays: twisted strips, shells whose sides turn vertical,
