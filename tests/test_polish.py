@@ -44,10 +44,10 @@ def test_foot_point_far_off_a_cylinder_patch_is_the_radial_projection():
     np.testing.assert_allclose(dist, np.abs(radius - 1.0), rtol=0, atol=1e-12)
 
 
-def test_global_start_is_much_nearer_the_foot_point_than_the_nearest_vertex():
-    """On a wavy patch, points off it by up to 3% of its size: the start (the nearest
-    vertex moved on the grid's tangent plane) is within a tenth of the grid spacing of
-    the foot point where the vertex itself is up to half a spacing off."""
+def test_global_search_starts_at_the_nearest_vertex_and_finds_the_foot_point():
+    """On a wavy patch, points off it by up to 3% of its size: the start is the nearest
+    vertex of the tessellation (within a grid spacing of the foot point, the same start
+    for any chunking) and Newton takes it to the foot point."""
     layout = NetLayout((6, 6), (3, 3))
     i, j = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6), indexing="ij")
     net = np.stack([i, j, 0.1 * np.sin(5 * i) * np.cos(4 * j)], -1).reshape(-1, 3)
@@ -58,11 +58,12 @@ def test_global_start_is_much_nearer_the_foot_point_than_the_nearest_vertex():
     normal = np.cross(su, sv)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     points = s + rng.uniform(-0.03, 0.03, (400, 1)) * normal
-    grid = GridStart(surface, 64)
-    spacing = 1.0 / 63
-    vertex = np.stack([grid.us[grid.vertex(points)[0]], grid.vs[grid.vertex(points)[1]]], axis=1)
-    assert np.abs(vertex - foot).max() > 0.3 * spacing
-    assert np.abs(grid(points) - foot).max() < 0.1 * spacing
+    start = GridStart(surface, 64)(points)
+    us, vs = surface.parameter_grid(64, 64)
+    vertices = surface.evaluate_grid(us, vs).reshape(-1, 3)
+    nearest = np.argmin(((points[:, None] - vertices[None]) ** 2).sum(-1), axis=1)
+    np.testing.assert_array_equal(start, np.c_[us[nearest // 64], vs[nearest % 64]])
+    assert 0.3 / 63 < np.abs(start - foot).max() < 1.0 / 63
     uv, dist = closest_parameters(surface, points, resolution=64)
     np.testing.assert_allclose(uv, foot, atol=1e-9)
 

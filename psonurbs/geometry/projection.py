@@ -1,7 +1,7 @@
 """Foot points: the closest point of a NURBS surface to each of many points.
 
 The foot point of x on S minimises f(u, v) = |S(u, v) - x|^2 / 2 over the domain. From a
-start (near the nearest vertex of a dense tessellation, or the previous parameters) Newton
+start (the nearest vertex of a dense tessellation, or the previous parameters) Newton
 steps H d = -g are taken for all points at once, with
 
     g = [S_u.r, S_v.r],   H = [[S_u.S_u + r.S_uu, S_u.S_v + r.S_uv], [., S_v.S_v + r.S_vv]],
@@ -32,39 +32,18 @@ def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
 
 
 class GridStart:
-    """Starts for a global search: the nearest vertex of a resolution x resolution
-    tessellation (a KD-tree over it, built once per surface), moved to the foot point
-    on the tessellation's tangent plane there (tangents by central differences of the
-    grid, the move at most one grid spacing): a start within a fraction of the grid's
-    spacing of the foot point, which saves Newton a step."""
+    """Starts for a global search: the parameters of the nearest vertex of a resolution x
+    resolution tessellation (a KD-tree over it, built once per surface and used for
+    every chunk of points)."""
 
     def __init__(self, surface: NurbsSurface, resolution: int):
         self.us, self.vs = surface.parameter_grid(resolution, resolution)
         self.resolution = resolution
-        self.grid = surface.evaluate_grid(self.us, self.vs)
-        self.tree = cKDTree(self.grid.reshape(-1, 3))
-
-    def vertex(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Grid indices (i, j) of the nearest vertex of each point."""
-        _, k = self.tree.query(points)
-        return k // self.resolution, k % self.resolution
+        self.tree = cKDTree(surface.evaluate_grid(self.us, self.vs).reshape(-1, 3))
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
-        i, j = self.vertex(points)
-        last, g, us, vs = self.resolution - 1, self.grid, self.us, self.vs
-        after_i, before_i = np.minimum(i + 1, last), np.maximum(i - 1, 0)
-        after_j, before_j = np.minimum(j + 1, last), np.maximum(j - 1, 0)
-        su = (g[after_i, j] - g[before_i, j]) / (us[after_i] - us[before_i])[:, None]
-        sv = (g[i, after_j] - g[i, before_j]) / (vs[after_j] - vs[before_j])[:, None]
-        d = points - g[i, j]
-        a, b, c = np.sum(su * su, 1), np.sum(su * sv, 1), np.sum(sv * sv, 1)
-        p, q = np.sum(su * d, 1), np.sum(sv * d, 1)
-        det = a * c - b * b
-        ok = det > 1e-12 * a * c  # not at a pole or a fold of the grid
-        det = np.where(ok, det, 1.0)
-        du = np.clip(np.where(ok, (c * p - b * q) / det, 0.0), -(us[1] - us[0]), us[1] - us[0])
-        dv = np.clip(np.where(ok, (a * q - b * p) / det, 0.0), -(vs[1] - vs[0]), vs[1] - vs[0])
-        return np.stack([us[i] + du, vs[j] + dv], axis=1)
+        _, k = self.tree.query(points)
+        return np.stack([self.us[k // self.resolution], self.vs[k % self.resolution]], axis=1)
 
 
 def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray | None = None,
