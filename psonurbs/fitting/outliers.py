@@ -1,0 +1,224 @@
+"""Gross outliers judged locally, before anything is fitted: a point is an outlier when it
+lies far from the surface its neighbours describe.
+
+For a point x_i and its k nearest neighbours (x_i itself left out), a quadric
+
+    z = b0 + b1 x + b2 y + b3 x^2 + b4 x y + b5 y^2
+
+is fitted to the neighbours in a frame whose z axis is their normal, by iteratively
+reweighted least squares with Tukey's biweight (scale: the median absolute residual), the
+frame re-estimated from the weighted neighbours: junk among the neighbours gets no weight,
+so it tilts neither the frame nor the quadric. A quadric removes the curvature to second
+order, so what is left is noise (and, on noise-free data, third-order shape). Point i's
+prediction residual ``rho_i = z_i - q(x_i, y_i)`` is studentised by its variance factor,
+
+    t_i = |rho_i| / sqrt(1 + v_i),   v_i = a_i^T (A^T W A)^-1 A^T W^2 A (A^T W A)^-1 a_i
+
+(a_i the quadric's monomials at x_i, A at the neighbours, W their weights), which grows
+where x_i lies outside its neighbours' footprint (an edge, a corner). The cloud's noise
+scale is ``sigma = 1.4826 median(t)`` (the standard deviation of normal noise, whatever
+the junk as long as it is under half the points), and a point is an outlier when
+
+    t_i > OUTLIER_SIGMAS * max(sigma, s_i, MODEL_RESOLUTION * r_i)
+
+with s_i the neighbours' own weighted spread about their quadric (the third-order shape
+a quadric cannot follow where a noise-free cloud is sparse or strongly curved: the thin
+edge of a graded cloud) and r_i the neighbourhood's radius (the quadric's precision on
+exact data). The neighbourhood is k points, not a radius, so the test is the same in
+sparse and dense regions.
+
+Junk far from the surface has other junk as its nearest neighbours, scattered points
+that describe no surface. So the test runs twice: the first pass judges every point
+against all its neighbours and finds the *support*, the points whose neighbourhood is a
+surface (thin about its least-squares quadric: residual RMS at most
+``max(THICKNESS, THICKNESS_RATIO x median)`` of its radius; scattered points in a ball
+are about 0.5) and which lie on it; the second judges every point against its nearest
+support points, where junk faces the surface it floats over.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+NEIGHBOURS = 24  # k: a quadric (6 coefficients) with room for a few junk neighbours
+OUTLIER_SIGMAS = 20.0  # gross: beyond heavy-tailed scanner noise (see the module docstring)
+SUPPORT_SIGMAS = 7.0  # a support point surely lies on its neighbours' surface (normal: 3e-12 off)
+MODEL_RESOLUTION = 1e-3  # relative precision of a local quadric on exact data
+THICKNESS = 0.2  # a neighbourhood thicker than this share of its radius is no surface...
+THICKNESS_RATIO = 3.0  # ...unless the cloud's typical neighbourhood is as thick (noise ~ spacing)
+MIN_POINTS = 20 * NEIGHBOURS  # below, a neighbourhood is over 5% of the cloud: too much for a quadric
+TUKEY = 4.685  # biweight tuning constant (95% efficiency under normal noise)
+RESOLUTION = 1e-6  # the scale floor, in shares of the diagonal (organise.RESOLUTION)
+CHUNK = 8192  # neighbourhoods fitted at once
+
+
+@dataclass(frozen=True)
+class NeighbourhoodFits:
+    """What the robust quadrics of the neighbourhoods say about their centres, (N,) each."""
+
+    residual: np.ndarray  # t_i: studentised distance of the centre from its neighbours' quadric
+    spread: np.ndarray  # s_i: the neighbours' weighted RMS residual about it
+    radius: np.ndarray  # r_i: RMS distance of the neighbours from their centroid, in the plane
+    weights: np.ndarray  # (N, k) the neighbours' biweights in the robust fit
+
+
+@dataclass(frozen=True)
+class LocalOutliers:
+    """The local verdict on a cloud: which points are gross outliers, and the noise scale."""
+
+    outliers: np.ndarray  # (N,) bool
+    statistic: np.ndarray  # (N,) t_i over its threshold scale, in robust sigmas
+    noise: float  # sigma, in the cloud's units
+    support: np.ndarray  # (N,) bool: points on a surface their neighbours describe
+    neighbours: np.ndarray  # (N, k) each point's nearest support points (itself left out)
+
+    @property
+    def inliers(self) -> np.ndarray:
+        return ~self.outliers
+
+    def to_dict(self) -> dict:
+        return {"outliers": int(self.outliers.sum()), "noise": float(self.noise),
+                "threshold_sigmas": OUTLIER_SIGMAS, "neighbours": int(self.neighbours.shape[1])}
+
+
+def biweight(residual: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Tukey's biweight ``(1 - (r / (TUKEY scale))^2)^2`` inside the cut-off, 0 beyond."""
+    u = np.minimum(np.abs(residual) / (TUKEY * np.maximum(scale, 1e-300)), 1.0)
+    return (1.0 - u * u) ** 2
+
+
+def nearest_among(points: np.ndarray, among: np.ndarray, k: int) -> np.ndarray:
+    """(N, k) indices of each point's k nearest points of the mask ``among``, itself left out."""
+    pool = np.flatnonzero(among)
+    _, nearest = cKDTree(points[pool]).query(points, k=k + 1)
+    nearest = pool[nearest.reshape(len(points), k + 1)]
+    own = nearest == np.arange(len(points))[:, None]
+    keep = np.where(own.any(axis=1)[:, None], ~own, np.arange(k + 1) < k)
+    return nearest[keep].reshape(len(points), k)
+
+
+def _frame(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted centroid (m, 3) and principal axes (m, 3, 3), the normal first."""
+    share = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    centre = np.einsum("mk,mki->mi", share, p)
+    q = p - centre[:, None]
+    _, axes = np.linalg.eigh(np.matmul(q.transpose(0, 2, 1), q * w[:, :, None]))
+    return centre, axes
+
+
+def _monomials(xy: np.ndarray, quadric: bool) -> np.ndarray:
+    """(..., 6) or (..., 3) columns 1, x, y (, x^2, x y, y^2)."""
+    x, y = xy[..., 0], xy[..., 1]
+    cols = [np.ones_like(x), x, y] + ([x * x, x * y, y * y] if quadric else [])
+    return np.stack(cols, axis=-1)
+
+
+def _local(p: np.ndarray, centre: np.ndarray, axes: np.ndarray, points: np.ndarray):
+    """Neighbours (m, k, 3) and centres (m, 3) in the frame, in-plane coordinates over the
+    neighbourhood's radius; and the radius (m,)."""
+    local = np.matmul(p - centre[:, None], axes)
+    at = np.einsum("mi,mij->mj", points - centre, axes)
+    radius = np.sqrt(np.mean(local[:, :, 1] ** 2 + local[:, :, 2] ** 2, axis=1))
+    radius = np.maximum(radius, 1e-300)
+    return local[:, :, 1:] / radius[:, None, None], local[:, :, 0], at[:, 1:] / radius[:, None], at[:, 0], radius
+
+
+def _solve(a: np.ndarray, w: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Weighted least-squares coefficients (m, p), a tiny ridge against empty directions."""
+    aw = a * w[:, :, None]
+    normal = np.matmul(aw.transpose(0, 2, 1), a)
+    normal += 1e-9 * np.eye(a.shape[2]) * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-300)
+    return np.linalg.solve(normal, np.einsum("mkp,mk->mp", aw, z)[:, :, None])[:, :, 0]
+
+
+def _median_abs(r: np.ndarray) -> np.ndarray:
+    return np.median(np.abs(r), axis=1, keepdims=True)
+
+
+def plain_spread(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """RMS residual (N,) of the plain least-squares quadric of every point's neighbours, and
+    their radius (N,). No robustness: scattered junk must look scattered."""
+    n, k = neighbours.shape
+    spread, radius = np.empty(n), np.empty(n)
+    for start in range(0, n, CHUNK):
+        rows = slice(start, min(n, start + CHUNK))
+        p = points[neighbours[rows]]
+        ones = np.ones(p.shape[:2])
+        xy, z, _, _, radius[rows] = _local(p, *_frame(p, ones), points[rows])
+        a = _monomials(xy, True)
+        e = z - np.einsum("mkp,mp->mk", a, _solve(a, ones, z))
+        spread[rows] = np.sqrt(np.sum(e * e, axis=1) / max(k - a.shape[2], 1))
+    return spread, radius
+
+
+def fit_neighbourhoods(points: np.ndarray, neighbours: np.ndarray, floor: float) -> NeighbourhoodFits:
+    """The robust quadric of every point's neighbours (``points[neighbours[i]]``), and
+    what it says about the point (see the module docstring).
+
+    ``floor`` bounds the biweight's scale from below (the cloud's noise): on structured
+    data (a grid, scan lines, the rings of a sphere) more than half the neighbours may lie
+    exactly on a plane, and a scale from their median residual alone would be zero.
+    """
+    n, k = neighbours.shape
+    out = {name: np.empty(n) for name in ("residual", "spread", "radius")}
+    all_weights = np.empty((n, k))
+    for start in range(0, n, CHUNK):
+        rows = slice(start, min(n, start + CHUNK))
+        p, x = points[neighbours[rows]], points[rows]
+        # robust start: the weights of the distances from the coordinate-wise median
+        d = np.linalg.norm(p - np.median(p, axis=1)[:, None], axis=2)
+        w = biweight(d, 1.4826 * _median_abs(d))
+        for quadric in (False, True):  # a plane settles the frame, then the quadric
+            xy, z, xy0, z0, radius = _local(p, *_frame(p, w), x)
+            a = _monomials(xy, quadric)
+            for _ in range(3):
+                e = z - np.einsum("mkp,mp->mk", a, _solve(a, w, z))
+                w = biweight(e, np.maximum(1.4826 * _median_abs(e), floor))
+        beta = _solve(a, w, z)
+        e = z - np.einsum("mkp,mp->mk", a, beta)
+        a0 = _monomials(xy0, True)
+        aw = a * w[:, :, None]
+        normal = np.matmul(aw.transpose(0, 2, 1), a)
+        normal += 1e-9 * np.eye(6) * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-300)
+        g = np.linalg.solve(normal, a0[:, :, None])[:, :, 0]  # (A^T W A)^-1 a_0
+        variance = np.sum(np.einsum("mkp,mp->mk", aw, g) ** 2, axis=1)  # |W A (A^T W A)^-1 a_0|^2
+        rho = z0 - np.einsum("mp,mp->m", a0, beta)
+        out["residual"][rows] = np.abs(rho) / np.sqrt(1.0 + variance)
+        out["spread"][rows] = np.sqrt(np.sum(w * e * e, axis=1) / np.maximum(w.sum(axis=1) - 6, 1.0))
+        out["radius"][rows] = radius
+        all_weights[rows] = w
+    return NeighbourhoodFits(weights=all_weights, **out)
+
+
+def _statistic(fits: NeighbourhoodFits, noise: float) -> np.ndarray:
+    return fits.residual / np.maximum(np.maximum(noise, fits.spread), MODEL_RESOLUTION * fits.radius)
+
+
+def _noise(fits: NeighbourhoodFits, among: np.ndarray) -> float:
+    return max(1.4826 * float(np.median(fits.residual[among])), RESOLUTION)
+
+
+def local_outliers(points: np.ndarray, neighbours: int = NEIGHBOURS) -> LocalOutliers:
+    """The local verdict on a cloud (N, 3) in normalised coordinates (diagonal 1).
+
+    A cloud of fewer than ``MIN_POINTS`` points is not judged (nothing is an outlier).
+    """
+    n = len(points)
+    if n < MIN_POINTS:
+        return LocalOutliers(np.zeros(n, bool), np.zeros(n), 0.0, np.ones(n, bool),
+                             np.zeros((n, 0), np.int64))
+    k = min(neighbours, n - 1)
+    nearest = nearest_among(points, np.ones(n, bool), k)
+    spread, radius = plain_spread(points, nearest)
+    first = fit_neighbourhoods(points, nearest, float(np.median(spread)))
+    thickness = spread / np.maximum(radius, 1e-300)
+    thin = thickness <= max(THICKNESS, THICKNESS_RATIO * float(np.median(thickness)))
+    noise = _noise(first, np.ones(n, bool))
+    support = thin & (_statistic(first, noise) <= SUPPORT_SIGMAS)
+    nearest = nearest_among(points, support, k)
+    second = fit_neighbourhoods(points, nearest, noise)
+    noise = _noise(second, support)
+    statistic = _statistic(second, noise)
+    return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, nearest)
