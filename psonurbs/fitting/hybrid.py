@@ -3,7 +3,8 @@
 A particle is (inner knots along u, inner knots along v, log-weights of the free
 control points). For given knots and weights the surface is linear in its control
 points, so they are never searched: the fitness solves for them by regularised least
-squares and returns the leave-one-out RMSE (or the plain RMSE).
+squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the robust
+loss's point weights when there are any (:mod:`psonurbs.fitting.robust`).
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from psonurbs.geometry.basis import random_inner_knots
 from psonurbs.geometry.net import NetLayout
 
 from .pso import Polytope
-from .solve import RegularisedLeastSquares
+from .solve import RegularisedLeastSquares, weighted_rms
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
 
@@ -29,9 +30,11 @@ class KnotWeightSearch:
     """
 
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 uv: np.ndarray, cross_validation: bool, min_gap: float, weight_bounds: tuple[float, float]):
+                 uv: np.ndarray, cross_validation: bool, min_gap: float, weight_bounds: tuple[float, float],
+                 point_weights: np.ndarray | None = None):
         self.layout, self.solver = layout, solver
         self.points, self.uv = points, uv
+        self.point_weights = point_weights  # (N,) the robust loss's, shared by all particles
         self.counts = layout.inner_counts
         self.gaps = tuple(min_gap / (c + 1) for c in self.counts)
         self.log_bounds = np.log(weight_bounds)
@@ -85,8 +88,8 @@ class KnotWeightSearch:
         solver = self.solver.with_smoothing(smoothing)
         try:
             if self.cross_validation:
-                return solver.leave_one_out_rmse(rows, self.points)
-            control = solver.solve(rows, self.points)
-            return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))
+                return solver.leave_one_out_rmse(rows, self.points, self.point_weights)
+            control = solver.solve(rows, self.points, self.point_weights)
+            return weighted_rms(np.sum((rows @ control - self.points) ** 2, axis=1), self.point_weights)
         except np.linalg.LinAlgError:
             return np.inf

@@ -74,31 +74,15 @@ def principal_frame(points: np.ndarray) -> Frame:
     return Frame(centroid, vt, diagonal)
 
 
-def organise(points: np.ndarray, orders: tuple[int, int], remove_outliers: bool = False) -> Cloud:
+def organise(points: np.ndarray, orders: tuple[int, int]) -> Cloud:
     """Validate, de-duplicate (keeping input order) and normalise a cloud."""
     points = np.asarray(points, float)
     check_fittable(points, orders)
     _, first = np.unique(points, axis=0, return_index=True)
     keep = np.sort(first)
     distinct = points[keep]
-    if remove_outliers:
-        distinct = distinct[statistical_inliers(distinct)]
     frame = principal_frame(distinct)
     return Cloud(frame.to_local(distinct), frame, len(points) - len(keep))
-
-
-def statistical_inliers(points: np.ndarray, neighbours: int = 16, ratio: float = 3.0) -> np.ndarray:
-    """Mask of points whose mean distance to their neighbours is not an outlier.
-
-    A point is dropped when that mean distance exceeds the median of all of them by
-    ``ratio`` robust standard deviations (1.4826 MAD).
-    """
-    k = min(neighbours + 1, len(points))
-    d, _ = cKDTree(points).query(points, k=k)
-    mean_d = d[:, 1:].mean(axis=1)
-    med = np.median(mean_d)
-    mad = 1.4826 * np.median(np.abs(mean_d - med)) + 1e-15
-    return mean_d <= med + ratio * mad
 
 
 def subsample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:

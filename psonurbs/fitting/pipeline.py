@@ -5,7 +5,8 @@ of both directions, the weights and the smoothing weight); inside its fitness th
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-left out first (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
+judged locally before anything is parametrised (:mod:`psonurbs.fitting.outliers`) and
+every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
 it is nearer than the classical start to the points the swarm never saw
 (:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
 leave-one-out at the corrected parameters and polished again; then, with ``refine``,
@@ -28,13 +29,14 @@ from psonurbs.geometry.projection import closest_parameters
 
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .organise import RESOLUTION, Cloud, organise, subsample
+from .outliers import OUTLIER_SIGMAS, local_outliers
 from .paper import FullSearch
 from .parametrise import Parametrisation
 from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
-from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers
-from .solve import RegularisedLeastSquares
+from .robust import CUTOFF_SIGMAS, classical_weights, kept_sample, refreshed_weights
+from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
@@ -56,7 +58,8 @@ def rms(distances: np.ndarray) -> float:
 
 
 def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray) -> float:
+                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
+                  point_weights: np.ndarray | None = None) -> float:
     """The smoothing weight with the least leave-one-out error at these parameters.
 
     After the polish the parameters are close to foot points, so the choice is sharp:
@@ -67,14 +70,15 @@ def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np
     errors = []
     for s in grid:
         try:
-            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points))
+            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points, point_weights))
         except np.linalg.LinAlgError:
             errors.append(np.inf)
     return float(grid[int(np.argmin(errors))])
 
 
 def validated(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray, uv: np.ndarray,
-              seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, dict]:
+              seen: np.ndarray, polish_iterations: int, point_weights: np.ndarray | None = None
+              ) -> tuple[np.ndarray, dict]:
     """The swarm's best particle, or the classical start if the best does worse on the
     points the swarm never saw.
 
@@ -86,24 +90,27 @@ def validated(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, poi
     candidates = {"classical": search.classical(), "swarm": best}
     if len(unseen) == 0 or np.array_equal(best, candidates["classical"]):
         return best, {}
+    seen_weights, unseen_weights = (None, None) if point_weights is None else (point_weights[seen], point_weights[unseen])
     errors = {}
     for name, x in candidates.items():
         inner_u, inner_v, weights, smoothing = search.split(x)
         surface = polish(layout, search.solver.with_smoothing(smoothing), points[seen], uv[seen], weights,
-                         inner_u, inner_v, polish_iterations)[1]
-        errors[name] = rms(closest_parameters(surface, points[unseen])[1])
+                         inner_u, inner_v, polish_iterations, point_weights=seen_weights)[1]
+        errors[name] = weighted_rms(closest_parameters(surface, points[unseen])[1] ** 2, unseen_weights)
     kept = "swarm" if errors["swarm"] < errors["classical"] else "classical"
     return candidates[kept], {"held_out_points": int(len(unseen)), "held_out_error": errors, "kept": kept}
 
 
-def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> bool:
+def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int,
+                     point_weights: np.ndarray | None = None) -> bool:
     """Whether the refinement's drop in the residual sum of squares pays for the weights
     it frees (Akaike): ``n ln(RSS_before / RSS_after) > 2 n_weights``.
 
     On noisy data the extra freedom buys a percent or two of RMSE by fitting the noise,
     at the price of the true shape; on a conic it takes the error to zero.
     """
-    rss_before, rss_after = float(np.sum(before ** 2)), float(np.sum(after ** 2))
+    c = 1.0 if point_weights is None else point_weights
+    rss_before, rss_after = float(np.sum(c * before ** 2)), float(np.sum(c * after ** 2))
     if rss_after <= 0.0:
         return rss_before > 0.0
     return len(before) * np.log(rss_before / rss_after) > 2.0 * n_weights
@@ -111,7 +118,7 @@ def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> b
 
 def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
              control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-             polish_iterations: int) -> NurbsSurface:
+             polish_iterations: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
     """The jointly refined surface with its edges back on the data.
 
     The refinement may let the data retreat from a bounded direction's edges (see
@@ -126,48 +133,54 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
     surface = layout.surface(control, weights, inner_u, inner_v)
     if not any(layout.bounded):
         return surface
-    if rms(closest_parameters(surface, points, uv)[1]) <= RESOLUTION:
+    if weighted_rms(closest_parameters(surface, points, uv)[1] ** 2, point_weights) <= RESOLUTION:
         extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
                   for k in (0, 1)]
         return surface.restricted(*extent)
-    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True)[1]
+    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True,
+                  point_weights=point_weights)[1]
 
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), then the
-    polish and the optional joint refinement; with ``robust``, on the inliers only
-    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
+    polish and the optional joint refinement; with ``robust``, every solve weighted by the
+    robust loss (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the
+    polished one after), the points of weight 0 left out."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
-    keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
-    points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
+    w = classical_weights(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud))
+    keep = w > 0
+    points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
+    c = w if config.robust else None  # the point weights of every solve
     search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
-                              config.min_knot_gap, tuple(config.weight_bounds))
+                              config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[seen])
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    chosen, validation = validated(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations)
+    chosen, validation = validated(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
     inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                         config.polish_iterations)
+                                         config.polish_iterations, point_weights=c)
     if config.robust:
-        keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
-        points, seen = cloud.points[keep], kept_sample(sample, keep)
+        w, uv = refreshed_weights(surface, cloud.points, keep, uv)
+        keep = w > 0
+        points, uv, seen, c = cloud.points[keep], uv[keep], kept_sample(sample, keep), w[keep]
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
     solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], weights,
-                                                 inner_u, inner_v))
+                                                 inner_u, inner_v, None if c is None else c[seen]))
     control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                        config.polish_iterations)
+                                        config.polish_iterations, point_weights=c)
     steps += more
     refine_steps, kept = 0, False
     if config.refine:
         control, weights, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, weights,
-                                                            inner_u, inner_v, np.log(config.weight_bounds))
+                                                            inner_u, inner_v, np.log(config.weight_bounds),
+                                                            point_weights=c)
         refined = anchored(layout, solver, points, uv, control, weights, inner_u, inner_v,
-                           config.polish_iterations)
+                           config.polish_iterations, c)
         kept = pays_for_weights(closest_parameters(surface, points)[1], closest_parameters(refined, points)[1],
-                                layout.n_free)
+                                layout.n_free, c)
         if kept:
             surface = refined
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
@@ -175,6 +188,9 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                       "classical_error": float(search.error(search.classical())), **validation},
             "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept),
             "outliers": int(len(keep) - keep.sum())}
+    if config.robust:
+        info["robust_loss"] = {"left_out": int(len(keep) - keep.sum()), "down_weighted": int(np.sum(c < 0.5)),
+                               "mean_weight": float(np.mean(w))}
     return surface, swarm, info
 
 
@@ -199,7 +215,10 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     """
     points = np.asarray(points, float)
     with threadpool_limits(limits=1):
-        cloud = organise(points, tuple(config.orders), config.remove_outliers)
+        cloud = organise(points, tuple(config.orders))
+        local = local_outliers(cloud.points) if config.robust else None
+        if local is not None and local.outliers.any():  # before they can steer the parametrisation
+            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates)
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
@@ -229,8 +248,10 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "points": int(len(points)),
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
-        "outliers": int(info.get("outliers", 0)),
+        "outliers": int(info.get("outliers", 0)) + (0 if local is None else int(local.outliers.sum())),
     }
+    if local is not None:
+        info["local_outliers"] = {**local.to_dict(), "noise": local.noise * diag}
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
     for name in info["swarm"].get("held_out_error", {}):
@@ -242,8 +263,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"under-determined: {len(cloud)} points for {layout.n_free} control points, "
                      "the smoothness term decides between them")
     if metrics["outliers"]:
-        notes.append(f"{metrics['outliers']} gross outliers (over {OUTLIER_SIGMAS:g} robust standard deviations "
-                     "off the surface) left out of the fit; rmse and max_error still count them")
+        notes.append(f"{metrics['outliers']} gross outliers left out of the fit ({metrics['outliers'] - info.get('outliers', 0)} "
+                     f"over {OUTLIER_SIGMAS:g} robust sigmas off the surface their neighbours describe, "
+                     f"{info.get('outliers', 0)} over {CUTOFF_SIGMAS:g} off the fit); rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
     if scores is not None:

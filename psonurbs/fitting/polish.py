@@ -8,6 +8,8 @@ import numpy as np
 
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
+from .solve import weighted_rms
+
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
     """A straight line ``across = a + b * along`` through the data's edge, evaluated at
@@ -84,10 +86,11 @@ class AndersonMixing:
 
 
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
-           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False):
+           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False,
+           point_weights: np.ndarray | None = None):
     """Alternate the least-squares solve with parameter correction while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
-    does not lower the error).
+    does not lower the error). ``point_weights`` (N,) weigh the solve and the error.
 
     Returns the best control points (free), their surface, its foot-point parameters
     and the rounds taken.
@@ -96,10 +99,10 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     uv = best_image = align_to_domain(uv, layout)
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
-        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
+        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points, point_weights)
         surface = layout.surface(control, weights, inner_u, inner_v)
         new_uv, dist = closest_parameters(surface, points, uv)
-        new_rmse = float(np.sqrt(np.mean(dist ** 2)))
+        new_rmse = weighted_rms(dist ** 2, point_weights)
         if new_rmse >= rmse * (1.0 - 1e-4):
             if not mixer.mixing:
                 break

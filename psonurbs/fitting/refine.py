@@ -4,7 +4,10 @@ Alternating parameter correction with linear least squares converges slowly and
 cannot move the weights. Here all of them are the unknowns of one non-linear least
 squares problem (the knots stay where the swarm put them):
 
-    min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+    min  sum_i c_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+
+(c_i > 0 the robust loss's point weights, 1 without them; below, every point's residual
+and Jacobian rows are scaled by sqrt(c_i), which makes the problem the unweighted one)
 
 With R the rational basis at the points, the Jacobian of point i's residual is
 
@@ -40,16 +43,17 @@ from .solve import RegularisedLeastSquares
 
 class JointProblem:
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 inner_u: np.ndarray, inner_v: np.ndarray):
+                 inner_u: np.ndarray, inner_v: np.ndarray, point_weights: np.ndarray | None = None):
         self.layout, self.solver, self.points = layout, solver, points
         self.inner = (inner_u, inner_v)
         self.n = layout.n_free
+        self.root = np.ones(len(points)) if point_weights is None else np.sqrt(point_weights)  # sqrt(c_i)
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
         """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
-        residual = rows @ control - self.points
-        regulariser = self.solver.regulariser(float(np.sum(rows.values ** 2)))  # per coordinate
+        residual = self.root[:, None] * (rows @ control - self.points)
+        regulariser = self.solver.regulariser(float(np.sum(self.root[:, None] ** 2 * rows.values ** 2)))
         objective = float(np.sum(residual ** 2) + np.sum(control * (regulariser @ control)))
         return {"rows": rows, "residual": residual, "regulariser": regulariser, "objective": objective}
 
@@ -64,7 +68,7 @@ class JointProblem:
         n, rows, res = self.n, ev["rows"], ev["residual"]
         surface = self.layout.surface(control, weights, *self.inner)
         _, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
-        c, v = rows.columns, rows.values
+        c, v = rows.columns, self.root[:, None] * rows.values
         s = control[c] - (rows @ control)[:, None, :]  # P_c - S_i, (N, m, 3)
         columns = np.concatenate([3 * c, 3 * c + 1, 3 * c + 2, 3 * n + c], axis=1)
         zeros = np.zeros_like(v)
@@ -76,7 +80,8 @@ class JointProblem:
         penalty[:3 * n, :3 * n] = np.kron(ev["regulariser"], np.eye(3))
         gram = stacked.gram() + penalty
         g = stacked.project(res.reshape(-1, 1))[:, 0] + penalty @ np.concatenate([control.ravel(), np.zeros(n)])
-        return {"v": v, "s": s, "jl": np.stack([su, sv], axis=2), "columns": columns, "cells": rows.cells,
+        jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
+        return {"v": v, "s": s, "jl": jl, "columns": columns, "cells": rows.cells,
                 "gram": gram, "g": g, "residual": res}
 
     def step(self, lin: dict, damping: float, frozen: np.ndarray | None = None):
@@ -121,9 +126,11 @@ class JointProblem:
 
 def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
                    control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                   log_bounds, iterations: int = 12, tolerance: float = 1e-6):
-    """Refined (control, weights, uv) and the rounds taken, started from the given ones."""
-    problem = JointProblem(layout, solver, points, inner_u, inner_v)
+                   log_bounds, iterations: int = 12, tolerance: float = 1e-6,
+                   point_weights: np.ndarray | None = None):
+    """Refined (control, weights, uv) and the rounds taken, started from the given ones;
+    ``point_weights`` (N,), all positive, weigh the points' squared distances."""
+    problem = JointProblem(layout, solver, points, inner_u, inner_v, point_weights)
     log_w = np.clip(np.log(weights), *log_bounds)
     uv = keep_in_domain(uv, layout.closed)
     ev = problem.evaluate(control, np.exp(log_w), uv)
