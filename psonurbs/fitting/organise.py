@@ -14,6 +14,8 @@ from scipy.spatial import cKDTree
 
 from psonurbs.errors import InputError
 
+from .outliers import Neighbourhoods
+
 # a distance, in normalised units (shares of the diagonal), at which a point lies on a
 # surface: the precision to which fitted surfaces are evaluated and scored
 RESOLUTION = 1e-6
@@ -41,6 +43,7 @@ class Cloud:
     points: np.ndarray  # (N, 3) distinct input points, normalised
     frame: Frame
     duplicates: int  # how many input points repeated an earlier one
+    neighbourhoods: Neighbourhoods | None = None  # the local test's, for the robust loss
 
     def __len__(self) -> int:
         return len(self.points)

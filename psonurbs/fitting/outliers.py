@@ -40,6 +40,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 NEIGHBOURS = 24  # k: a quadric (6 coefficients) with room for a few junk neighbours
@@ -52,6 +54,8 @@ MIN_POINTS = 20 * NEIGHBOURS  # below, a neighbourhood is over 5% of the cloud: 
 TUKEY = 4.685  # biweight tuning constant (95% efficiency under normal noise)
 RESOLUTION = 1e-6  # the scale floor, in shares of the diagonal (organise.RESOLUTION)
 CHUNK = 8192  # neighbourhoods fitted at once
+IRLS_STEPS = 2  # reweighted solves for the plane, then for the quadric
+SHARED_NEIGHBOURS = NEIGHBOURS // 4  # two points on one surface share a good part of their neighbours
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,38 @@ class NeighbourhoodFits:
     radius: np.ndarray  # r_i: RMS distance of the neighbours from their centroid, in the plane
     weights: np.ndarray  # (N, k) the neighbours' biweights in the robust fit
 
+    def replaced(self, rows: np.ndarray, other: "NeighbourhoodFits") -> "NeighbourhoodFits":
+        """These fits with those of ``rows`` taken from ``other`` (fitted for those rows only)."""
+        out = {}
+        for name in ("residual", "spread", "radius", "weights"):
+            out[name] = getattr(self, name).copy()
+            out[name][rows] = getattr(other, name)
+        return NeighbourhoodFits(**out)
+
+
+@dataclass(frozen=True)
+class Neighbourhoods:
+    """Each point's neighbours on the same piece of surface (for the robust loss, which
+    keeps a point its neighbours agree with, however far from the fit they all are).
+
+    A piece is a connected set of points chained by neighbourhoods that agree: j is
+    among i's nearest support points and has a positive weight in i's robust quadric,
+    and i likewise in j's.
+    Separate pieces (a piece of another object, fragments) are not chained to the main one.
+    """
+
+    index: np.ndarray  # (N, k) agreeing neighbours on the main piece, -1 where none
+    on_main_piece: np.ndarray  # (N,) bool: on the largest piece
+
+    def median(self, values: np.ndarray) -> np.ndarray:
+        """(N,) median of the neighbours' values (0 for a point without neighbours)."""
+        valid = self.index >= 0
+        picked = np.sort(np.where(valid, values[np.maximum(self.index, 0)], np.inf), axis=1)
+        count = valid.sum(axis=1)
+        rows = np.arange(len(values))
+        low, high = picked[rows, np.maximum(count - 1, 0) // 2], picked[rows, np.minimum(count // 2, picked.shape[1] - 1)]
+        return np.where(count > 0, 0.5 * (low + high), 0.0)
+
 
 @dataclass(frozen=True)
 class LocalOutliers:
@@ -70,17 +106,65 @@ class LocalOutliers:
 
     outliers: np.ndarray  # (N,) bool
     statistic: np.ndarray  # (N,) t_i over its threshold scale, in robust sigmas
-    noise: float  # sigma, in the cloud's units
+    noise: float  # sigma, in normalised units (shares of the diagonal)
     support: np.ndarray  # (N,) bool: points on a surface their neighbours describe
     neighbours: np.ndarray  # (N, k) each point's nearest support points (itself left out)
+    agree: np.ndarray  # (N, k) bool: the neighbour has weight in the point's robust quadric
 
     @property
     def inliers(self) -> np.ndarray:
         return ~self.outliers
 
+    def neighbourhoods(self) -> Neighbourhoods | None:
+        """The inliers' :class:`Neighbourhoods`, indexed among the inliers (None if the
+        cloud was too small to be judged).
+
+        Pieces are chained through support points only: a point whose neighbourhood is
+        no surface (a corner of a floating piece, a point beside junk) reaches across
+        gaps to whatever support is nearest, so it joins the piece most of its agreeing
+        neighbours are on, but links none.
+        """
+        if self.neighbours.shape[1] == 0:
+            return None
+        keep = self.inliers
+        new = np.cumsum(keep) - 1
+        valid = (self.agree & keep[self.neighbours])[keep]
+        index = np.where(valid, new[self.neighbours[keep]], -1)
+        support = self.support[keep]
+        n = int(keep.sum())
+        # links between support points, mutual (a quadric over a neighbourhood half on one
+        # piece, half on another can pass through both, but the far piece's own
+        # neighbourhoods do not reach back) and sharing SHARED_NEIGHBOURS neighbours (two
+        # pieces whose edges come close are not one surface)
+        links = valid & support[:, None] & (shared_neighbours(index) >= SHARED_NEIGHBOURS)
+        rows = np.repeat(np.arange(n), index.shape[1])[links.ravel()]
+        graph = sp.csr_array((np.ones(len(rows)), (rows, index[links])), shape=(n, n))
+        _, piece = connected_components(graph.multiply(graph.T), directed=False)
+        largest = np.argmax(np.bincount(piece[support], minlength=piece.max() + 1))
+        main = support & (piece == largest)
+        votes = np.sum(valid & main[np.maximum(index, 0)], axis=1)
+        main = main | (~support & (2 * votes > valid.sum(axis=1)))
+        on_main = valid & main[np.maximum(index, 0)]
+        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main)
+
     def to_dict(self) -> dict:
+        """For the JSON (the noise scale in normalised units)."""
         return {"outliers": int(self.outliers.sum()), "noise": float(self.noise),
                 "threshold_sigmas": OUTLIER_SIGMAS, "neighbours": int(self.neighbours.shape[1])}
+
+
+def shared_neighbours(index: np.ndarray) -> np.ndarray:
+    """(N, k) how many neighbours point i shares with its neighbour ``index[i, s]`` (-1: none)."""
+    n, k = index.shape
+    out = np.zeros((n, k), np.int64)
+    safe = np.where(index >= 0, index, n)  # a sentinel row of no neighbours
+    padded = np.vstack([np.where(index >= 0, index, -1), np.full((1, k), -2)])
+    for start in range(0, n, CHUNK // 8):  # (m, k, k, k) comparisons at once
+        rows = slice(start, min(n, start + CHUNK // 8))
+        mine = padded[rows][:, None, :, None]  # (m, 1, k, 1)
+        theirs = padded[safe[rows]][:, :, None, :]  # (m, k, 1, k)
+        out[rows] = np.sum((mine == theirs) & (mine >= 0), axis=(2, 3))
+    return out
 
 
 def biweight(residual: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -130,7 +214,12 @@ def _solve(a: np.ndarray, w: np.ndarray, z: np.ndarray) -> np.ndarray:
     aw = a * w[:, :, None]
     normal = np.matmul(aw.transpose(0, 2, 1), a)
     normal += 1e-9 * np.eye(a.shape[2]) * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-300)
-    return np.linalg.solve(normal, np.einsum("mkp,mk->mp", aw, z)[:, :, None])[:, :, 0]
+    return np.linalg.solve(normal, np.matmul(aw.transpose(0, 2, 1), z[:, :, None]))[:, :, 0]
+
+
+def _apply(a: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    """``A beta`` for every neighbourhood: (m, k, p) by (m, p) -> (m, k)."""
+    return np.matmul(a, beta[:, :, None])[:, :, 0]
 
 
 def _median_abs(r: np.ndarray) -> np.ndarray:
@@ -148,14 +237,15 @@ def plain_spread(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray
         ones = np.ones(p.shape[:2])
         xy, z, _, _, radius[rows] = _local(p, *_frame(p, ones), points[rows])
         a = _monomials(xy, True)
-        e = z - np.einsum("mkp,mp->mk", a, _solve(a, ones, z))
+        e = z - _apply(a, _solve(a, ones, z))
         spread[rows] = np.sqrt(np.sum(e * e, axis=1) / max(k - a.shape[2], 1))
     return spread, radius
 
 
-def fit_neighbourhoods(points: np.ndarray, neighbours: np.ndarray, floor: float) -> NeighbourhoodFits:
-    """The robust quadric of every point's neighbours (``points[neighbours[i]]``), and
-    what it says about the point (see the module docstring).
+def fit_neighbourhoods(points: np.ndarray, centres: np.ndarray, neighbours: np.ndarray,
+                       floor: float) -> NeighbourhoodFits:
+    """The robust quadric of the neighbours ``points[neighbours[i]]`` (M, k) of each point
+    ``points[centres[i]]`` (M,), and what it says about that point (see the module docstring).
 
     ``floor`` bounds the biweight's scale from below (the cloud's noise): on structured
     data (a grid, scan lines, the rings of a sphere) more than half the neighbours may lie
@@ -166,24 +256,24 @@ def fit_neighbourhoods(points: np.ndarray, neighbours: np.ndarray, floor: float)
     all_weights = np.empty((n, k))
     for start in range(0, n, CHUNK):
         rows = slice(start, min(n, start + CHUNK))
-        p, x = points[neighbours[rows]], points[rows]
+        p, x = points[neighbours[rows]], points[centres[rows]]
         # robust start: the weights of the distances from the coordinate-wise median
         d = np.linalg.norm(p - np.median(p, axis=1)[:, None], axis=2)
         w = biweight(d, 1.4826 * _median_abs(d))
         for quadric in (False, True):  # a plane settles the frame, then the quadric
             xy, z, xy0, z0, radius = _local(p, *_frame(p, w), x)
             a = _monomials(xy, quadric)
-            for _ in range(3):
-                e = z - np.einsum("mkp,mp->mk", a, _solve(a, w, z))
+            for _ in range(IRLS_STEPS):
+                e = z - _apply(a, _solve(a, w, z))
                 w = biweight(e, np.maximum(1.4826 * _median_abs(e), floor))
         beta = _solve(a, w, z)
-        e = z - np.einsum("mkp,mp->mk", a, beta)
+        e = z - _apply(a, beta)
         a0 = _monomials(xy0, True)
         aw = a * w[:, :, None]
         normal = np.matmul(aw.transpose(0, 2, 1), a)
         normal += 1e-9 * np.eye(6) * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-300)
         g = np.linalg.solve(normal, a0[:, :, None])[:, :, 0]  # (A^T W A)^-1 a_0
-        variance = np.sum(np.einsum("mkp,mp->mk", aw, g) ** 2, axis=1)  # |W A (A^T W A)^-1 a_0|^2
+        variance = np.sum(_apply(aw, g) ** 2, axis=1)  # |W A (A^T W A)^-1 a_0|^2
         rho = z0 - np.einsum("mp,mp->m", a0, beta)
         out["residual"][rows] = np.abs(rho) / np.sqrt(1.0 + variance)
         out["spread"][rows] = np.sqrt(np.sum(w * e * e, axis=1) / np.maximum(w.sum(axis=1) - 6, 1.0))
@@ -208,17 +298,19 @@ def local_outliers(points: np.ndarray, neighbours: int = NEIGHBOURS) -> LocalOut
     n = len(points)
     if n < MIN_POINTS:
         return LocalOutliers(np.zeros(n, bool), np.zeros(n), 0.0, np.ones(n, bool),
-                             np.zeros((n, 0), np.int64))
+                             np.zeros((n, 0), np.int64), np.zeros((n, 0), bool))
     k = min(neighbours, n - 1)
+    everyone = np.arange(n)
     nearest = nearest_among(points, np.ones(n, bool), k)
     spread, radius = plain_spread(points, nearest)
-    first = fit_neighbourhoods(points, nearest, float(np.median(spread)))
+    floor = float(np.median(spread))
+    first = fit_neighbourhoods(points, everyone, nearest, floor)
     thickness = spread / np.maximum(radius, 1e-300)
     thin = thickness <= max(THICKNESS, THICKNESS_RATIO * float(np.median(thickness)))
-    noise = _noise(first, np.ones(n, bool))
-    support = thin & (_statistic(first, noise) <= SUPPORT_SIGMAS)
-    nearest = nearest_among(points, support, k)
-    second = fit_neighbourhoods(points, nearest, noise)
+    support = thin & (_statistic(first, _noise(first, everyone)) <= SUPPORT_SIGMAS)
+    among_support = nearest_among(points, support, k)
+    changed = np.flatnonzero(np.any(among_support != nearest, axis=1))  # the others' fits stand
+    second = first.replaced(changed, fit_neighbourhoods(points, changed, among_support[changed], floor))
     noise = _noise(second, support)
     statistic = _statistic(second, noise)
-    return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, nearest)
+    return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, among_support, second.weights > 0)

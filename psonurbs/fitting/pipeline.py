@@ -148,7 +148,8 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     robust loss (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the
     polished one after), the points of weight 0 left out."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
-    w = classical_weights(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud))
+    w = classical_weights(layout, solver, cloud.points, par.uv, cloud.neighbourhoods) if config.robust \
+        else np.ones(len(cloud))
     keep = w > 0
     points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
     c = w if config.robust else None  # the point weights of every solve
@@ -163,7 +164,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
                                          config.polish_iterations, point_weights=c)
     if config.robust:
-        w, uv = refreshed_weights(surface, cloud.points, keep, uv)
+        w, uv = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
         keep = w > 0
         points, uv, seen, c = cloud.points[keep], uv[keep], kept_sample(sample, keep), w[keep]
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
@@ -217,8 +218,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     with threadpool_limits(limits=1):
         cloud = organise(points, tuple(config.orders))
         local = local_outliers(cloud.points) if config.robust else None
-        if local is not None and local.outliers.any():  # before they can steer the parametrisation
-            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates)
+        if local is not None:  # the outliers go before they can steer the parametrisation
+            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates, local.neighbourhoods())
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)

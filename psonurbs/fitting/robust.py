@@ -13,6 +13,14 @@ deviation of a zero-mean normal residual r whatever the junk, as long as it is u
 half the points; the floor keeps an exact fit, whose distances are evaluation noise,
 from weighing anything down). Points of weight 0 are *left out* (``metrics.outliers``
 counts them with the local outliers); partial weights only make a point count less.
+
+Where the fit itself is wrong (a bump the net cannot resolve, a fold of the
+parametrisation), a whole neighbourhood lies far from it: those points are not junk,
+and leaving them out would hide the error. So a point on the main piece of surface
+(:class:`psonurbs.fitting.outliers.Neighbourhoods`) is judged against the larger of
+sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_i)``:
+it is left out only when it is far from the fit *and* from where its neighbours are.
+Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -28,6 +36,7 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .organise import RESOLUTION
+from .outliers import Neighbourhoods
 from .solve import RegularisedLeastSquares
 
 CUTOFF_SIGMAS = 10.0
@@ -40,14 +49,18 @@ def residual_scale(distances: np.ndarray) -> float:
     return max(1.4826 * float(np.median(distances)), RESOLUTION)
 
 
-def biweights(distances: np.ndarray) -> np.ndarray:
-    """Tukey's biweight of every distance, cut off at ``CUTOFF_SIGMAS`` robust sigmas."""
-    u = np.minimum(distances / (CUTOFF_SIGMAS * residual_scale(distances)), 1.0)
+def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
+    """Tukey's biweight of every distance (N,), cut off at ``CUTOFF_SIGMAS`` times its scale
+    (sigma, or ``max(sigma, m_i)`` on the main piece with ``neighbourhoods``)."""
+    scale = residual_scale(distances)
+    if neighbourhoods is not None:
+        scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
+    u = np.minimum(distances / (CUTOFF_SIGMAS * scale), 1.0)
     return (1.0 - u * u) ** 2
 
 
 def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                      uv: np.ndarray) -> np.ndarray:
+                      uv: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
     """Point weights (N,) of the classical fit (uniform knots, unit weights) at the initial
     parameters, reweighted until they stand still.
 
@@ -58,7 +71,7 @@ def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points
     rows = layout.rows(uv, np.ones(layout.n_free))
     w = np.ones(len(points))
     for _ in range(ROUNDS):
-        new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1))
+        new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1), neighbourhoods)
         done = np.max(np.abs(new - w)) <= WEIGHT_TOLERANCE
         w = new
         if done:
@@ -66,8 +79,8 @@ def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points
     return w
 
 
-def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarray,
-                      uv_kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarray, uv_kept: np.ndarray,
+                      neighbourhoods: Neighbourhoods | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The weights (N,) on a better fit, and the foot-point parameters (N, 2) on it (the
     points kept so far start from their own, the left-out ones from a global search)."""
     start = np.empty((len(points), 2))
@@ -75,7 +88,7 @@ def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarra
     if not keep.all():
         start[~keep] = closest_parameters(surface, points[~keep])[0]
     uv, dist = closest_parameters(surface, points, start)
-    return biweights(dist), uv
+    return biweights(dist, neighbourhoods), uv
 
 
 def kept_sample(sample: np.ndarray, keep: np.ndarray) -> np.ndarray:
