@@ -110,4 +110,4 @@ def test_neighbourhood_median_skips_missing_neighbours():
     index[0] = -1
     values = rng.random(40)
     expected = [np.median(values[r[r >= 0]]) if (r >= 0).any() else 0.0 for r in index]
-    np.testing.assert_allclose(Neighbourhoods(index, np.ones(40, bool)).median(values), expected)
+    np.testing.assert_allclose(Neighbourhoods(index, np.ones(40, bool), np.ones(40, bool)).median(values), expected)

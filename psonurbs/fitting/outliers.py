@@ -89,6 +89,7 @@ class Neighbourhoods:
 
     index: np.ndarray  # (N, k) agreeing neighbours on the main piece, -1 where none
     on_main_piece: np.ndarray  # (N,) bool: on the largest piece
+    vouched: np.ndarray  # (N,) bool: on it, and within SUPPORT_SIGMAS of its neighbours' quadric
 
     def median(self, values: np.ndarray) -> np.ndarray:
         """(N,) median of the neighbours' values (0 for a point without neighbours)."""
@@ -145,11 +146,13 @@ class LocalOutliers:
         votes = np.sum(valid & main[np.maximum(index, 0)], axis=1)
         main = main | (~support & (2 * votes > valid.sum(axis=1)))
         on_main = valid & main[np.maximum(index, 0)]
-        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main)
+        vouched = main & (self.statistic[keep] <= SUPPORT_SIGMAS)
+        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched)
 
-    def to_dict(self) -> dict:
-        """For the JSON (the noise scale in normalised units)."""
-        return {"outliers": int(self.outliers.sum()), "noise": float(self.noise),
+    def to_dict(self, diagonal: float = 1.0) -> dict:
+        """For the JSON: the count, the noise scale (in the units of ``diagonal``, the
+        normalised cloud's scale) and the test's settings (0 neighbours: not judged)."""
+        return {"outliers": int(self.outliers.sum()), "noise": float(self.noise * diagonal),
                 "threshold_sigmas": OUTLIER_SIGMAS, "neighbours": int(self.neighbours.shape[1])}
 
 

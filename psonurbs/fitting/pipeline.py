@@ -35,7 +35,7 @@ from .parametrise import Parametrisation
 from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
-from .robust import CUTOFF_SIGMAS, classical_weights, kept_sample, refreshed_weights
+from .robust import CUTOFF_SIGMAS, classical_weights, kept_sample, loss_summary, refreshed_weights
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
 
@@ -187,11 +187,9 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical())), **validation},
-            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept),
-            "outliers": int(len(keep) - keep.sum())}
+            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept)}
     if config.robust:
-        info["robust_loss"] = {"left_out": int(len(keep) - keep.sum()), "down_weighted": int(np.sum(c < 0.5)),
-                               "mean_weight": float(np.mean(w))}
+        info["robust"] = {"loss": loss_summary(w)}
     return surface, swarm, info
 
 
@@ -249,10 +247,11 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "points": int(len(points)),
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
-        "outliers": int(info.get("outliers", 0)) + (0 if local is None else int(local.outliers.sum())),
+        "outliers": 0,
     }
-    if local is not None:
-        info["local_outliers"] = {**local.to_dict(), "noise": local.noise * diag}
+    if local is not None:  # left out: locally judged outliers, and points of weight 0 in the final solve
+        info.setdefault("robust", {})["local"] = local.to_dict(diag)
+        metrics["outliers"] = int(local.outliers.sum()) + info["robust"].get("loss", {}).get("left_out", 0)
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
     for name in info["swarm"].get("held_out_error", {}):
@@ -264,9 +263,11 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"under-determined: {len(cloud)} points for {layout.n_free} control points, "
                      "the smoothness term decides between them")
     if metrics["outliers"]:
-        notes.append(f"{metrics['outliers']} gross outliers left out of the fit ({metrics['outliers'] - info.get('outliers', 0)} "
-                     f"over {OUTLIER_SIGMAS:g} robust sigmas off the surface their neighbours describe, "
-                     f"{info.get('outliers', 0)} over {CUTOFF_SIGMAS:g} off the fit); rmse and max_error still count them")
+        local_count = int(local.outliers.sum())
+        notes.append(f"{metrics['outliers']} gross outliers left out of the fit ({local_count} over {OUTLIER_SIGMAS:g} "
+                     "robust sigmas off the surface their neighbours describe, "
+                     f"{metrics['outliers'] - local_count} over {CUTOFF_SIGMAS:g} off the fit and from their neighbours); "
+                     "rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
     if scores is not None:

@@ -21,6 +21,9 @@ and leaving them out would hide the error. So a point on the main piece of surfa
 sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_i)``:
 it is left out only when it is far from the fit *and* from where its neighbours are.
 Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
+A point the local test vouched for (on the main piece, within a few sigmas of the
+surface its neighbours describe) is never left out: where the fit folds or tears between
+it and its neighbours, the loss may lower its say to ``VOUCHED_FLOOR``, not to nothing.
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -40,6 +43,7 @@ from .outliers import Neighbourhoods
 from .solve import RegularisedLeastSquares
 
 CUTOFF_SIGMAS = 10.0
+VOUCHED_FLOOR = 0.01  # the least weight of a point its neighbours vouch for
 ROUNDS = 8  # reweighted refits of the classical fit, at most
 WEIGHT_TOLERANCE = 1e-3  # the weights stand still: no weight moved more than this
 
@@ -51,12 +55,16 @@ def residual_scale(distances: np.ndarray) -> float:
 
 def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
     """Tukey's biweight of every distance (N,), cut off at ``CUTOFF_SIGMAS`` times its scale
-    (sigma, or ``max(sigma, m_i)`` on the main piece with ``neighbourhoods``)."""
+    (sigma, or ``max(sigma, m_i)`` on the main piece with ``neighbourhoods``, the points
+    they vouch for kept at ``VOUCHED_FLOOR`` at least)."""
     scale = residual_scale(distances)
     if neighbourhoods is not None:
         scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
     u = np.minimum(distances / (CUTOFF_SIGMAS * scale), 1.0)
-    return (1.0 - u * u) ** 2
+    weights = (1.0 - u * u) ** 2
+    if neighbourhoods is not None:
+        weights = np.where(neighbourhoods.vouched, np.maximum(weights, VOUCHED_FLOOR), weights)
+    return weights
 
 
 def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
@@ -89,6 +97,14 @@ def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarra
         start[~keep] = closest_parameters(surface, points[~keep])[0]
     uv, dist = closest_parameters(surface, points, start)
     return biweights(dist, neighbourhoods), uv
+
+
+def loss_summary(weights: np.ndarray) -> dict:
+    """For the JSON: how many points the final solve left out (weight 0), how many it
+    counted less than half, and the mean weight of those it kept."""
+    kept = weights[weights > 0]
+    return {"left_out": int(np.sum(weights == 0)), "down_weighted": int(np.sum(kept < 0.5)),
+            "mean_weight": float(kept.mean()) if len(kept) else 0.0, "cutoff_sigmas": CUTOFF_SIGMAS}
 
 
 def kept_sample(sample: np.ndarray, keep: np.ndarray) -> np.ndarray:
