@@ -173,6 +173,14 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
                                         config.polish_iterations, point_weights=c)
     steps += more
+    if config.robust:  # the points left out on the first polished surface, judged on the better one
+        again, uv_all = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
+        if not np.array_equal(again > 0, keep):
+            w, keep = again, again > 0
+            points, uv, seen, c = cloud.points[keep], uv_all[keep], kept_sample(sample, keep), w[keep]
+            control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
+                                                config.polish_iterations, point_weights=c)
+            steps += more
     refine_steps, kept = 0, False
     if config.refine:
         control, weights, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, weights,
