@@ -35,7 +35,15 @@ from .parametrise import Parametrisation
 from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
-from .robust import CUTOFF_SIGMAS, classical_weights, kept_sample, loss_summary, refreshed_weights
+from .robust import (
+    CUTOFF_SIGMAS,
+    classical_weights,
+    kept_sample,
+    loss_summary,
+    parameters_for_all,
+    refreshed_weights,
+    trusted_points,
+)
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
 
@@ -230,11 +238,14 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
         scores = None
+        trusted = trusted_points(cloud.neighbourhoods, len(cloud))  # they alone steer the parametrisation
+        points_t, sample_t = cloud.points[trusted], kept_sample(sample, trusted)
         if config.topology == "auto":
-            topology, par, scores = choose_topology(cloud.points, sample, config)
+            topology, par, scores = choose_topology(points_t, sample_t, config)
         else:
             topology = config.topology
-            par = parametrise_for(cloud.points, sample, topology, config)
+            par = parametrise_for(points_t, sample_t, topology, config)
+        par = Parametrisation(parameters_for_all(cloud.points, trusted, par.uv), par.info)
         layout = layout_for(topology, config.net_size, config.degrees)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         run = run_full if config.strategy == "full" else run_hybrid

@@ -33,6 +33,7 @@ at 1 sigma and 0.56 at 5.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -70,14 +71,15 @@ def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = Non
 def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
                       uv: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
     """Point weights (N,) of the classical fit (uniform knots, unit weights) at the initial
-    parameters, reweighted until they stand still.
+    parameters, reweighted until they stand still, from the trusted points (the others
+    start left out, with a weight to earn).
 
     A point is judged by its leave-one-out residual (against the fit that did not see
     it; a left-out point's is its residual): junk where data are thin (an edge, a corner)
     pulls the least-squares surface onto itself, not the fit without it.
     """
     rows = layout.rows(uv, np.ones(layout.n_free))
-    w = np.ones(len(points))
+    w = trusted_points(neighbourhoods, len(points)).astype(float)
     for _ in range(ROUNDS):
         new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1), neighbourhoods)
         done = np.max(np.abs(new - w)) <= WEIGHT_TOLERANCE
@@ -105,6 +107,26 @@ def loss_summary(weights: np.ndarray) -> dict:
     kept = weights[weights > 0]
     return {"left_out": int(np.sum(weights == 0)), "down_weighted": int(np.sum(kept < 0.5)),
             "mean_weight": float(kept.mean()) if len(kept) else 0.0, "cutoff_sigmas": CUTOFF_SIGMAS}
+
+
+def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
+    """(N,) the points that may steer the parametrisation and start the first fit: those the
+    local test vouches for (all, when it judged nothing, or vouched for under half: a cloud
+    whose noise hides its structure at the scale of the neighbourhoods)."""
+    if neighbourhoods is None or 2 * int(neighbourhoods.vouched.sum()) < n:
+        return np.ones(n, bool)
+    return neighbourhoods.vouched
+
+
+def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
+    """(N, 2) parameters of all points from those of the trusted ones: each other point takes
+    its nearest trusted point's (a start; the first fit leaves it out until it earns a weight)."""
+    if trusted.all():
+        return uv_trusted
+    uv = np.empty((len(points), 2))
+    uv[trusted] = uv_trusted
+    uv[~trusted] = uv_trusted[cKDTree(points[trusted]).query(points[~trusted])[1]]
+    return uv
 
 
 def kept_sample(sample: np.ndarray, keep: np.ndarray) -> np.ndarray:
