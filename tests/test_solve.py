@@ -223,3 +223,18 @@ def test_weighted_leave_one_out_equals_brute_force_refits(name):
     np.testing.assert_allclose(loo, brute, rtol=1e-7, atol=1e-9)
     expected = np.sqrt(np.sum(w * np.sum(brute ** 2, axis=1)) / np.sum(w))
     assert solver.leave_one_out_rmse(rows, data, w) == pytest.approx(expected, rel=1e-8)
+
+
+def test_an_integer_weight_is_the_point_given_that_many_times():
+    """Weight 2 on a point is the point twice: the data term, the smoothing's relative
+    weight (from tr(R^T W R)) and the leave-one-out residuals of the other points."""
+    layout, rows, data, _ = problem("open", seed=14)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3)
+    w = np.ones(len(data))
+    w[[2, 9]] = 2.0
+    twice = np.r_[np.arange(len(data)), [2, 9]]
+    np.testing.assert_allclose(solver.solve(rows, data, w), solver.solve(rows.take(twice), data[twice]),
+                               rtol=1e-10, atol=1e-12)
+    others = np.setdiff1d(np.arange(len(data)), [2, 9])
+    np.testing.assert_allclose(solver.leave_one_out(rows, data, w)[1][others],
+                               solver.leave_one_out(rows.take(twice), data[twice])[1][others], rtol=1e-8, atol=1e-12)
