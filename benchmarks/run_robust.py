@@ -6,7 +6,7 @@
     python benchmarks/run_robust.py --write-only --out /tmp/robust   # only the clouds
 
 Each cloud is written with its YAML and its true surface (``NAME.gt.npz``: a dense
-triangulation, the noise and the junk share, the format ``../shared/bench/score.py``
+triangulation, the noise and the junk share, the format ``benchmarks/score.py``
 reads), fitted by the installed ``psonurbs`` and scored like the public cases
 (``run_cases.py``); the table adds ``outliers`` (``metrics.outliers``: points left out of
 the fit) and the scorer's ``inlier_rmse`` (on the points within 4 noise sigmas of the
