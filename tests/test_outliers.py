@@ -57,6 +57,23 @@ def test_the_thin_edge_of_a_graded_cloud_is_no_outlier(noise):
     assert not verdict.outliers.any()
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_lone_corner_point_on_the_surface_is_vouched_for(seed):
+    # the surface's own corner beyond a gap: the corner point's neighbours are the data's
+    # corner, whose own neighbourhoods (denser) do not reach back to it, so it links to
+    # none; it lies on their surface, so it joins their piece and the loss keeps it
+    rng = np.random.default_rng(seed)
+    x, y = 0.06 + 0.94 * rng.random((2, 5000))
+    x, y = np.r_[x, 0.0], np.r_[y, 0.0]
+    pts = np.column_stack([x, y, franke_z(x, y)])
+    pts += rng.normal(0, 1e-3 * np.linalg.norm(pts.max(0) - pts.min(0)), pts.shape)
+    verdict = local_outliers(normalised(pts))
+    pieces = verdict.neighbourhoods()
+    assert not verdict.outliers.any() and verdict.support[-1]
+    assert pieces.on_main_piece.all() and pieces.vouched.all()
+    assert (pieces.index[-1] >= 0).sum() == pieces.index.shape[1]  # its neighbours count for it
+
+
 def test_structured_sampling_is_no_outlier():
     # a latitude-longitude grid on a sphere (rings of one latitude lie on a plane: a
     # robust fit must not settle on one ring) and a terrain along scan lines

@@ -123,7 +123,7 @@ class LocalOutliers:
         Pieces are chained through support points only: a point whose neighbourhood is
         no surface (a corner of a floating piece, a point beside junk) reaches across
         gaps to whatever support is nearest, so it joins the piece most of its agreeing
-        neighbours are on, but links none.
+        neighbours are on, but links none; so does a support point no other links to.
         """
         if self.neighbours.shape[1] == 0:
             return None
@@ -141,10 +141,14 @@ class LocalOutliers:
         rows = np.repeat(np.arange(n), index.shape[1])[links.ravel()]
         graph = sp.csr_array((np.ones(len(rows)), (rows, index[links])), shape=(n, n))
         _, piece = connected_components(graph.multiply(graph.T), directed=False)
-        largest = np.argmax(np.bincount(piece[support], minlength=piece.max() + 1))
-        main = support & (piece == largest)
+        sizes = np.bincount(piece[support], minlength=piece.max() + 1)
+        main = support & (piece == np.argmax(sizes))
+        # a point linked to none (a piece of one: a corner of a sparse edge, whose
+        # neighbours' denser quadrics do not reach back to it) is no piece of its own:
+        # like a point without support, it joins the piece most of its agreeing neighbours are on
+        unlinked = ~support | (sizes[piece] <= 1)
         votes = np.sum(valid & main[np.maximum(index, 0)], axis=1)
-        main = main | (~support & (2 * votes > valid.sum(axis=1)))
+        main = main | (unlinked & (2 * votes > valid.sum(axis=1)))
         on_main = valid & main[np.maximum(index, 0)]
         vouched = main & (self.statistic[keep] <= SUPPORT_SIGMAS)
         return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched)
