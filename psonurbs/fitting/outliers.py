@@ -123,7 +123,8 @@ class LocalOutliers:
         Pieces are chained through support points only: a point whose neighbourhood is
         no surface (a corner of a floating piece, a point beside junk) reaches across
         gaps to whatever support is nearest, so it joins the piece most of its agreeing
-        neighbours are on, but links none; so does a support point no other links to.
+        neighbours are on, but links none; so does a support point no other links to,
+        which nothing vouches for.
         """
         if self.neighbours.shape[1] == 0:
             return None
@@ -143,14 +144,17 @@ class LocalOutliers:
         _, piece = connected_components(graph.multiply(graph.T), directed=False)
         sizes = np.bincount(piece[support], minlength=piece.max() + 1)
         main = support & (piece == np.argmax(sizes))
-        # a point linked to none (a piece of one: a corner of a sparse edge, whose
-        # neighbours' denser quadrics do not reach back to it) is no piece of its own:
-        # like a point without support, it joins the piece most of its agreeing neighbours are on
-        unlinked = ~support | (sizes[piece] <= 1)
         votes = np.sum(valid & main[np.maximum(index, 0)], axis=1)
-        main = main | (unlinked & (2 * votes > valid.sum(axis=1)))
-        on_main = valid & main[np.maximum(index, 0)]
+        joins = 2 * votes > valid.sum(axis=1)
+        # a support point linked to none (a piece of one) is no piece of its own: it is
+        # judged with the neighbours it agrees with, but nothing vouches for it (a corner
+        # of a sparse edge and junk just beyond an edge both look so: their neighbours'
+        # denser quadrics do not reach back to them)
+        lone = support & (sizes[piece] <= 1) & joins
+        main = main | (~support & joins)
         vouched = main & (self.statistic[keep] <= SUPPORT_SIGMAS)
+        main = main | lone
+        on_main = valid & main[np.maximum(index, 0)]
         return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched)
 
     def to_dict(self, diagonal: float = 1.0) -> dict:
