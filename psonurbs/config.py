@@ -38,12 +38,14 @@ from psonurbs.errors import ConfigError, existing_file
 
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
+PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
 
 __all__ = [
     "SwarmConfig",
     "FitConfig",
     "TOPOLOGIES",
     "STRATEGIES",
+    "PARAMETRISATIONS",
     "load_config",
     "config_from_dict",
     "BOUNDS",
@@ -233,6 +235,9 @@ class FitConfig:
         neighbours describe, :mod:`psonurbs.fitting.outliers`) and a robust loss in every
         solve (:mod:`psonurbs.fitting.robust`); the metrics still count every point. The
         YAML key ``remove_outliers`` is an alias.
+    parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
+        (the cloud's own graph laid flat, then corrected from a coarse net to the
+        configured one) or "auto" (the plane where the cloud is a height field over it).
     """
 
     orders: tuple[int, int] = (3, 3)
@@ -249,6 +254,7 @@ class FitConfig:
     cross_validation: bool = True
     refine: bool = True
     robust: bool = True
+    parametrisation: str = "auto"
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -270,6 +276,7 @@ class FitConfig:
         if self.topology == "sphere" and self.net_size[1] < 3:
             raise ConfigError(f"config key 'net_size': a sphere needs at least 3 control points along v "
                               f"(the first and last collapse to the poles), got {self.net_size[1]}")
+        put("parametrisation", _choice("parametrisation", self.parametrisation, PARAMETRISATIONS))
         put("strategy", _choice("strategy", self.strategy, STRATEGIES))
         swarm = self.swarm
         if swarm is None:

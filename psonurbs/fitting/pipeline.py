@@ -14,6 +14,9 @@ control points, weights and parameters are refined jointly (:mod:`psonurbs.fitti
 anchored to the data's edges and kept if the gain pays for the freed weights
 (:func:`pays_for_weights`). ``strategy: full`` is the paper's own search space
 (Eq. 10, :mod:`psonurbs.fitting.paper`): the swarm's best surface is the result.
+The result is checked without ground truth (:mod:`psonurbs.fitting.checks`: the surface
+or its net far outside the cloud's box, a fold, surface far from every point); a fit
+that fails a check carries warnings and says so in its notes.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
+from .checks import check_fit
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .outliers import OUTLIER_SIGMAS, local_outliers
@@ -59,6 +63,7 @@ class FitResult:
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
+    warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.checks`)
 
 
 def rms(distances: np.ndarray) -> float:
@@ -251,6 +256,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         run = run_full if config.strategy == "full" else run_hybrid
         surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
         _, dist = closest_parameters(surface, cloud.frame.to_local(points))
+        checks = check_fit(surface, cloud.points)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
                          surface.closed_u, surface.closed_v)
@@ -267,6 +273,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
         "outliers": 0,
+        **checks.to_dict(),
     }
     if local is not None:  # left out: locally judged outliers, and points of weight 0 in the final solve
         info.setdefault("robust", {})["local"] = local.to_dict(diag)
@@ -294,4 +301,5 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"topology auto: {topology} (" + ", ".join(
             f"{name} {s['classical_error_relative']:.2e}" if "rejected" not in s else f"{name} rejected: {s['rejected']}"
             for name, s in scores.items()) + ")")
-    return FitResult(world, topology, metrics, curve, info, notes)
+    notes += [f"suspect fit: {warning}" for warning in checks.warnings]
+    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings)
