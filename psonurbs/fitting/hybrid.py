@@ -4,18 +4,28 @@ A particle is (inner knots along u, inner knots along v, log-weights of the free
 control points). For given knots and weights the surface is linear in its control
 points, so they are never searched: the fitness solves for them by regularised least
 squares and returns the leave-one-out RMSE (or the plain RMSE).
+
+The swarm's fitness evaluates all particles of an iteration together
+(:mod:`psonurbs.fitting.stacked_solve`); :meth:`KnotWeightSearch.error` is the same
+number for one particle through the single solver (scipy design matrices, dense
+Cholesky), used by the topology choice and the validation.
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
-from psonurbs.geometry.basis import random_inner_knots
+from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
 from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.stacked_rows import CellLayout, stacked_rows
 
 from .pso import Polytope
 from .solve import RegularisedLeastSquares
+from .stacked_solve import StackedLeastSquares
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
+GROUP_BYTES = 2 ** 21  # particles are evaluated in groups whose rows take about this much (cache)
 
 
 class KnotWeightSearch:
@@ -55,6 +65,12 @@ class KnotWeightSearch:
                               Polytope.ordered(cv, self.gaps[1]).embed(self.dimension, cu),
                               Polytope.box(lo, hi))
 
+    @staticmethod
+    def uniform(layout: NetLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(weights, inner knots u, inner knots v) of the classical fit: unit weights, uniform knots."""
+        cu, cv = layout.inner_counts
+        return np.ones(layout.n_free), uniform_inner_knots(cu), uniform_inner_knots(cv)
+
     def classical(self) -> np.ndarray:
         """Uniform knots, unit weights and the configured smoothing: the classical fit."""
         cu, cv = self.counts
@@ -76,8 +92,26 @@ class KnotWeightSearch:
             swarm.append(start + mix * rng.random() * (target - start))
         return np.array(swarm)
 
+    @cached_property
+    def stacked(self) -> StackedLeastSquares:
+        return StackedLeastSquares(self.solver, CellLayout(self.layout))
+
     def fitness(self, positions: np.ndarray) -> np.ndarray:
-        return np.array([self.error(x) for x in positions])
+        """The error of every particle (P,), all evaluated together; inf for a particle
+        whose normal matrix is not numerically positive definite."""
+        positions = np.atleast_2d(positions)
+        group = max(1, GROUP_BYTES // (8 * len(self.points) * int(np.prod(np.add(self.layout.degrees, 1)))))
+        if len(positions) > group:
+            return np.concatenate([self.fitness(positions[k:k + group]) for k in range(0, len(positions), group)])
+        cu, cv = self.counts
+        try:
+            rows = stacked_rows(self.stacked.cells, self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
+                                positions[:, cu:cu + cv])
+            return self.stacked.errors(rows, self.points, 10.0 ** positions[:, -1], self.cross_validation)
+        except np.linalg.LinAlgError:
+            if len(positions) == 1:
+                return np.array([np.inf])
+            return np.concatenate([self.fitness(x) for x in positions])
 
     def error(self, x: np.ndarray) -> float:
         inner_u, inner_v, weights, smoothing = self.split(x)

@@ -28,6 +28,7 @@ from typing import Callable, Sequence
 from psonurbs.errors import PsonurbsError
 
 from .gate import Gate
+from .heap import keep_freed_memory
 from .inputs import Job
 from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row
 from .workers import pool_run
@@ -192,6 +193,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
     # the refusals are reported where they stand in the input order (workers == 1) or first
     pending_reports = {k: rows[k] for k in range(len(jobs)) if rows[k] is not None}
     if workers <= 1 or len(todo) <= 1:
+        keep_freed_memory()  # this process fits
         for k in range(len(jobs)):
             if k in pending_reports:
                 done(k, pending_reports[k])

@@ -11,6 +11,8 @@ import signal
 import traceback
 from typing import Callable
 
+from .heap import keep_freed_memory
+
 __all__ = ["pool_run"]
 
 
@@ -19,8 +21,9 @@ _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 
 
 def _worker_init() -> None:
-    """Each worker: Ctrl-C is the parent's business; one BLAS/OpenMP thread."""
+    """Each worker: Ctrl-C is the parent's business; one BLAS/OpenMP thread; freed memory kept."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    keep_freed_memory()
     for name in _THREAD_VARIABLES:
         os.environ[name] = "1"
     try:
