@@ -238,8 +238,8 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
 
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
     from psonurbs.fitting.hybrid import KnotWeightSearch
-    from psonurbs.fitting.pipeline import validated
     from psonurbs.fitting.solve import RegularisedLeastSquares
+    from psonurbs.fitting.validation import held_out_choice
 
     pts = franke(n=3000, seed=12, noise=0.01)
     layout = NetLayout((8, 8), (4, 4))
@@ -251,11 +251,35 @@ def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_w
     crowded = classical.copy()
     cu, _ = layout.inner_counts
     crowded[:cu] = np.linspace(0.05, 0.25, cu)  # knots crowded on one side, wide spans on the other
-    chosen, info = validated(search, crowded, layout, pts, uv, seen, 20)
-    assert info["kept"] == "classical" and np.array_equal(chosen, classical)
-    assert info["held_out_error"]["swarm"] > info["held_out_error"]["classical"]
-    assert info["held_out_points"] == 2000
+    chosen, test = held_out_choice(search, crowded, layout, pts, uv, seen, 20)
+    assert test.kept == "classical" and np.array_equal(chosen, classical)
+    assert test.swarm_error > test.classical_error and test.z > 0
+    assert test.points == 2000
     # the classical start itself, or no unseen point: nothing to judge, the best stands
     for best, points in ((classical, pts), (crowded, pts[:1000])):
-        chosen, info = validated(search, best, layout, points, uv, seen, 20)
-        assert np.array_equal(chosen, best) and info == {}
+        chosen, test = held_out_choice(search, best, layout, points, uv, seen, 20)
+        assert np.array_equal(chosen, best) and test is None
+
+
+def test_paired_test_keeps_the_swarm_only_beyond_twice_the_standard_error():
+    from psonurbs.fitting.validation import Z, paired_test
+
+    rng = np.random.default_rng(0)
+    noise = np.abs(rng.normal(0.0, 1.0, 4000))
+    # the same distances up to a per-point jitter: no real difference, the classical fit stays
+    jitter = noise * (1.0 + 0.01 * rng.normal(size=noise.size))
+    same = paired_test(noise, jitter)
+    assert same.kept == "classical" and abs(same.z) < Z
+    # 5% closer at every point: a gain far beyond the sampling error
+    better = paired_test(noise, 0.95 * noise)
+    assert better.kept == "swarm" and better.z < -Z
+    assert better.swarm_error == pytest.approx(0.95 * better.classical_error)
+    # 0.1% closer on average but with point-to-point scatter ten times larger: not significant
+    scatter = paired_test(noise, noise * (0.999 + 0.05 * rng.normal(size=noise.size)))
+    assert scatter.kept == "classical"
+    d = (noise * (0.999 + 0.05 * rng.normal(size=noise.size))) ** 2 - noise ** 2
+    assert paired_test(noise, np.sqrt(noise ** 2 + d)).z == pytest.approx(
+        d.mean() / (d.std(ddof=1) / np.sqrt(len(d))))
+    info = better.to_dict(scale=2.0)
+    assert info["kept"] == "swarm" and info["held_out_points"] == 4000
+    assert info["held_out_error"]["swarm"] == pytest.approx(2.0 * better.swarm_error)

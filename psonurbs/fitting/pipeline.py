@@ -36,6 +36,7 @@ from .refine import refine_jointly
 from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers
 from .solve import RegularisedLeastSquares
 from .topology import choose_topology, layout_for, parametrise_for
+from .validation import held_out_choice
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 
@@ -71,29 +72,6 @@ def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np
         except np.linalg.LinAlgError:
             errors.append(np.inf)
     return float(grid[int(np.argmin(errors))])
-
-
-def validated(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray, uv: np.ndarray,
-              seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, dict]:
-    """The swarm's best particle, or the classical start if the best does worse on the
-    points the swarm never saw.
-
-    Among thousands of particles, the least leave-one-out error on one sample is an
-    optimistic pick (on noisy data: knots and weights tuned to that sample's noise).
-    Both are polished on the swarm's points; the surface nearer the others is kept.
-    """
-    unseen = np.setdiff1d(np.arange(len(points)), seen)
-    candidates = {"classical": search.classical(), "swarm": best}
-    if len(unseen) == 0 or np.array_equal(best, candidates["classical"]):
-        return best, {}
-    errors = {}
-    for name, x in candidates.items():
-        inner_u, inner_v, weights, smoothing = search.split(x)
-        surface = polish(layout, search.solver.with_smoothing(smoothing), points[seen], uv[seen], weights,
-                         inner_u, inner_v, polish_iterations)[1]
-        errors[name] = rms(closest_parameters(surface, points[unseen])[1])
-    kept = "swarm" if errors["swarm"] < errors["classical"] else "classical"
-    return candidates[kept], {"held_out_points": int(len(unseen)), "held_out_error": errors, "kept": kept}
 
 
 def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> bool:
@@ -135,22 +113,33 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots, weights and smoothing (least-squares control points), then the
-    polish and the optional joint refinement; with ``robust``, on the inliers only
-    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
+    """The classical fit polished (parameters corrected at uniform knots, the smoothing
+    chosen there), the swarm over knots, weights and smoothing at those parameters, kept
+    if it predicts the points it never saw better (:mod:`psonurbs.fitting.validation`),
+    then the polish and the optional joint refinement; with ``robust``, on the inliers
+    only (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished ones after)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
-    points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
+    points, uv = cloud.points[keep], par.uv[keep]
+    # knots are searched where the parameters are right: at the classical fit's foot points
+    uniform = KnotWeightSearch.uniform(layout)
+    surface, uv, steps = polish(layout, solver, points, uv, *uniform, config.polish_iterations)[1:]
+    if config.robust:
+        keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
+        points = cloud.points[keep]
+    seen = kept_sample(sample, keep)
+    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], *uniform))
     search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    chosen, validation = validated(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations)
+    chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations)
     inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
-    control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                         config.polish_iterations)
+    control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
+                                        config.polish_iterations)
+    steps += more
     if config.robust:
         keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
         points, seen = cloud.points[keep], kept_sample(sample, keep)
@@ -170,6 +159,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                                 layout.n_free)
         if kept:
             surface = refined
+    validation = {} if test is None else test.to_dict()
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical())), **validation},
