@@ -1,22 +1,24 @@
-"""Stacked banded Cholesky and selected inversion: P symmetric banded systems at once.
+"""Stacked banded factorisation and selected inversion: P symmetric banded systems at once.
 
 The normal matrix of a tensor-product net couples control points (i, j) and (i', j')
 only if |i - i'| <= p and |j - j'| <= q, so in row-major order it is banded with half
 bandwidth w ~ p * nv + q, much less than its size n (w = 39, n = 144 on a 12 x 12
-cubic net). Its Cholesky factor L stays inside the band. Leave-one-out leverages
+cubic net), and its factors stay inside the band. Leave-one-out leverages
 ``h_i = r_i^T M^-1 r_i`` only need the entries of M^-1 at pairs of columns one row
 touches, which lie inside the band too; Takahashi's recurrences give exactly those
-entries from L, in O(n w^2) instead of the O(n^3) of a full inverse.
+entries from the factors, in O(n w^2) instead of the O(n^3) of a full inverse.
 
-Everything runs on dense (P, n, n) storage, block column by block column (b columns
-at a time), so a step is a few batched matrix products over all P systems:
+Everything runs on dense (P, n, n) storage, b columns at a time (a block LDL^T), so a
+step is a few batched matrix products over all P systems. With J a block's columns and
+R the rows below it inside the band (J's next w rows):
 
-    factor:   L_JJ = chol(A_JJ),  L_RJ = A_RJ L_JJ^-T,  A_RR -= L_RJ L_RJ^T
-    inverse:  G = L_RJ L_JJ^-1,   S_RJ = -S_RR G,      S_JJ = L_JJ^-T L_JJ^-1 - G^T S_RJ
+    factor:   D_J = A_JJ,  G_J = A_RJ D_J^-1,  A_RR -= G_J A_RJ^T
+    inverse:  S_RJ = -S_RR G_J,  S_JJ = D_J^-1 - G_J^T S_RJ      (last block first)
+    solve:    y_R -= G_J y_J (forward),  x_J = D_J^-1 y_J - G_J^T x_R (backward)
 
-with J the block's columns and R the rows below it inside the band (R = J's next w
-rows). The inverse runs from the last block to the first; S_RR was filled by the blocks
-after J. Only band entries of S (and a few just past it) are computed; the rest stay 0.
+S_RR was filled by the blocks after J. Only band entries of S (and a few just past it)
+are computed; the rest stay 0. Each D_J is checked positive definite by a Cholesky
+factorisation, as the single solver's ``cho_factor`` would.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-BLOCK = 16  # columns per step of the factorisation (a power of two)
+BLOCK = 16  # columns per step of the factorisation
 
 
 @dataclass(frozen=True)
@@ -56,76 +58,49 @@ class BandOrder:
         return cls(best, width, BLOCK)
 
 
-def lower_inverse(lower: np.ndarray) -> np.ndarray:
-    """Inverses of P lower-triangular (b, b) matrices, b a power of two, by halving:
-    ``[[A, 0], [B, C]]^-1 = [[A^-1, 0], [-C^-1 B A^-1, C^-1]]``, all blocks of one size
-    at once (log2 b batched products instead of one LAPACK call per matrix)."""
-    n_mats, b, _ = lower.shape
-    out = np.zeros_like(lower)
-    diag = np.arange(b)
-    out[:, diag, diag] = 1.0 / lower[:, diag, diag]
-    size = 1
-    while size < b:
-        pairs = b // (2 * size)
-        blocks = lower.reshape(n_mats, pairs, 2, size, pairs, 2, size)
-        inverses = out.reshape(n_mats, pairs, 2, size, pairs, 2, size)
-        k = np.arange(pairs)
-        # fancy indices k, k on axes 1 and 4 move to the front: (pairs, P, size, size)
-        inverses[:, k, 1, :, k, 0, :] = -(inverses[:, k, 1, :, k, 1, :] @ blocks[:, k, 1, :, k, 0, :]
-                                         @ inverses[:, k, 0, :, k, 0, :])
-        size *= 2
-    return out
-
-
 class StackedBandedCholesky:
-    """Cholesky factors of P symmetric positive definite (n, n) matrices with half
-    bandwidth ``w`` (in the order they are given), ``block`` columns at a time
-    (a power of two; the systems are padded with identity rows to a multiple of it).
+    """Block LDL^T factors of P symmetric positive definite (n, n) matrices with half
+    bandwidth ``w`` (in the order they are given), ``block`` columns at a time.
 
     Raises numpy.linalg.LinAlgError if any of the matrices is not positive definite.
     """
 
     def __init__(self, matrices: np.ndarray, half_bandwidth: int, block: int):
-        n_mats, n, _ = matrices.shape
-        size = -(-n // block) * block
-        a = np.zeros((n_mats, size, size))
-        a[:, :n, :n] = matrices
-        pad = np.arange(n, size)
-        a[:, pad, pad] = 1.0
-        self.n, self.size, self.steps = n, size, []
-        for j0 in range(0, size, block):
-            j1 = j0 + block
-            end = min(j1 + half_bandwidth, size)
-            inverse = lower_inverse(np.linalg.cholesky(a[:, j0:j1, j0:j1]))  # L_JJ^-1
-            panel = a[:, j1:end, j0:j1] @ inverse.transpose(0, 2, 1)  # L_RJ
+        a = np.array(matrices, float)
+        n = self.n = a.shape[1]
+        self.steps = []
+        for j0 in range(0, n, block):
+            j1 = min(j0 + block, n)
+            end = min(j1 + half_bandwidth, n)
+            pivot = a[:, j0:j1, j0:j1]
+            np.linalg.cholesky(pivot)  # raises unless positive definite
+            inverse = np.linalg.inv(pivot)  # D_J^-1
+            below = a[:, j1:end, j0:j1]  # A_RJ
+            g = below @ inverse  # G_J
             if end > j1:
-                a[:, j1:end, j1:end] -= panel @ panel.transpose(0, 2, 1)
-            self.steps.append((j0, j1, end, inverse, panel))
+                a[:, j1:end, j1:end] -= g @ below.transpose(0, 2, 1)
+            self.steps.append((j0, j1, end, inverse, g))
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``M^-1 rhs`` for rhs (P, n, k): forward then backward substitution by blocks."""
-        y = np.zeros((rhs.shape[0], self.size, rhs.shape[2]))
-        y[:, :self.n] = rhs
-        for j0, j1, end, inverse, panel in self.steps:
-            y[:, j0:j1] = inverse @ y[:, j0:j1]
+        y = np.array(rhs, float)
+        for j0, j1, end, _, g in self.steps:
             if end > j1:
-                y[:, j1:end] -= panel @ y[:, j0:j1]
-        for j0, j1, end, inverse, panel in reversed(self.steps):
-            top = y[:, j0:j1]
+                y[:, j1:end] -= g @ y[:, j0:j1]
+        for j0, j1, end, inverse, g in reversed(self.steps):
+            top = inverse @ y[:, j0:j1]
             if end > j1:
-                top = top - panel.transpose(0, 2, 1) @ y[:, j1:end]
-            y[:, j0:j1] = inverse.transpose(0, 2, 1) @ top
-        return y[:, :self.n]
+                top -= g.transpose(0, 2, 1) @ y[:, j1:end]
+            y[:, j0:j1] = top
+        return y
 
     def selected_inverse(self) -> np.ndarray:
-        """(P, size, size) holding the entries of ``M^-1`` inside the band (Takahashi's
-        recurrences, last block first); entries far outside the band are 0, and rows
-        and columns from n on belong to the padding."""
-        s = np.zeros((self.steps[0][3].shape[0], self.size, self.size))
-        for j0, j1, end, inverse, panel in reversed(self.steps):
-            diagonal = inverse.transpose(0, 2, 1) @ inverse
+        """(P, n, n) holding the entries of ``M^-1`` inside the band (Takahashi's
+        recurrences, last block first); entries far outside the band are 0."""
+        s = np.zeros((self.steps[0][3].shape[0], self.n, self.n))
+        for j0, j1, end, inverse, g in reversed(self.steps):
+            diagonal = inverse.copy()
             if end > j1:
-                g = panel @ inverse
                 below = -(s[:, j1:end, j1:end] @ g)
                 s[:, j1:end, j0:j1] = below
                 s[:, j0:j1, j1:end] = below.transpose(0, 2, 1)

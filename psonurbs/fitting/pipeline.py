@@ -113,22 +113,16 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """The classical fit polished (parameters corrected at uniform knots, the smoothing
-    chosen there), the swarm over knots, weights and smoothing at those parameters, kept
-    if it predicts the points it never saw better (:mod:`psonurbs.fitting.validation`),
-    then the polish and the optional joint refinement; with ``robust``, on the inliers
-    only (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished ones after)."""
+    """Swarm over knots, weights and smoothing (least-squares control points) from the
+    classical fit with its smoothing chosen by leave-one-out, the best kept only if it
+    predicts the points it never saw better (:mod:`psonurbs.fitting.validation`), then
+    the polish and the optional joint refinement; with ``robust``, on the inliers only
+    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
-    points, uv = cloud.points[keep], par.uv[keep]
-    # knots are searched where the parameters are right: at the classical fit's foot points
-    uniform = KnotWeightSearch.uniform(layout)
-    surface, uv, steps = polish(layout, solver, points, uv, *uniform, config.polish_iterations)[1:]
-    if config.robust:
-        keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
-        points = cloud.points[keep]
-    seen = kept_sample(sample, keep)
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], *uniform))
+    points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
+    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen],
+                                                 *KnotWeightSearch.uniform(layout)))
     search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
@@ -137,9 +131,8 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations)
     inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
-    control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                        config.polish_iterations)
-    steps += more
+    control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
+                                         config.polish_iterations)
     if config.robust:
         keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
         points, seen = cloud.points[keep], kept_sample(sample, keep)

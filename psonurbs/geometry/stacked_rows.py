@@ -51,22 +51,22 @@ def domain_spans(x: np.ndarray, knots: np.ndarray, degree: int) -> tuple[np.ndar
 
 
 def local_basis(x: np.ndarray, local_knots: np.ndarray, degree: int) -> np.ndarray:
-    """The degree + 1 non-zero B-spline values at x (T, S), every row of x in one span k,
-    given the knots ``t_{k-p+1} .. t_{k+p}`` around it (T, 2p): shape (p + 1, T, S).
+    """The degree + 1 non-zero B-spline values at x (S, T), every column of x in one span
+    k, given the knots ``t_{k-p+1} .. t_{k+p}`` around it (2p, T): shape (p + 1, S, T).
 
     De Boor's recurrence, ``left_i = x - t_{k+1-i}``, ``right_i = t_{k+i} - x``: level j
     takes ``N_r <- right_{r+1} N_r / d_r + left_{j-r+1} N_{r-1} / d_{r-1}`` with
-    ``d_r = t_{k+r+1} - t_{k+r+1-j}``, a knot difference (one per row).
+    ``d_r = t_{k+r+1} - t_{k+r+1-j}``, a knot difference (one per column). The columns
+    are the last axis, so every operation runs along them.
     """
-    t = local_knots[:, :, None]  # t_{k-p+1+l} = t[:, l]
-    left = x[None] - t[:, degree - 1::-1].transpose(1, 0, 2)  # left_1 .. left_p, (p, T, S)
-    right = t[:, degree:].transpose(1, 0, 2) - x[None]  # right_1 .. right_p
+    t = local_knots[:, None, :]  # t_{k-p+1+l} = t[l], (2p, 1, T)
+    left = x - t[degree - 1::-1]  # left_1 .. left_p, (p, S, T)
+    right = t[degree:] - x  # right_1 .. right_p
     values = np.ones((1,) + x.shape)
     for j in range(1, degree + 1):
-        r = np.arange(j)
-        temp = values * (1.0 / (t[:, degree + r] - t[:, degree + r - j])).transpose(1, 0, 2)  # N_r / d_r
+        temp = values * (1.0 / (t[degree:degree + j] - t[degree - j:degree]))  # N_r / d_r, r < j
         new = np.empty((j + 1,) + x.shape)
-        new[:j] = right[:j] * temp
+        np.multiply(right[:j], temp, out=new[:j])
         new[j] = 0.0
         new[1:] += left[j - 1::-1] * temp
         values = new
@@ -182,22 +182,23 @@ def stacked_rows(cells: CellLayout, uv: np.ndarray, weights: np.ndarray,
     slot_of, chunk_block = chunk_slots(block, n_particles * cells.count, slots)
     chunks = len(chunk_block)
     particle, cell = chunk_block // cells.count, chunk_block % cells.count
-    filled = np.zeros(chunks * slots, bool)
-    filled[slot_of] = True
-    filled = filled.reshape(chunks, slots)
+    across = (slot_of % slots) * chunks + slot_of // slots  # the same slots, laid out (slots, chunks)
+    filled = np.zeros(slots * chunks, bool)
+    filled[across] = True
+    filled = filled.reshape(slots, chunks)
     directions = []
     for x, degree, first, knot in ((xu, p, cell // cells.shape[1], knots[0]),
                                    (xv, q, cell % cells.shape[1], knots[1])):
-        placed = np.zeros(chunks * slots)
-        placed[slot_of] = x.ravel()
+        placed = np.empty(slots * chunks)
+        placed[across] = x.ravel()
         start = knot[particle, first + degree]
-        placed = np.where(filled, placed.reshape(chunks, slots), start[:, None])  # padding on the span's left knot
-        around = knot[particle[:, None], first[:, None] + 1 + np.arange(2 * degree)]  # t_{k-p+1} .. t_{k+p}
+        placed = np.where(filled, placed.reshape(slots, chunks), start)  # padding on the span's left knot
+        around = knot[particle, first + 1 + np.arange(2 * degree)[:, None]]  # t_{k-p+1} .. t_{k+p}, (2p, T)
         directions.append(local_basis(placed, around, degree))
     u, v = directions
     u *= filled  # padding rows are 0
-    tensor = (u.transpose(1, 2, 0)[:, :, :, None] * v.transpose(1, 2, 0)[:, :, None, :]).reshape(chunks, slots, m)
-    tensor *= weights[particle[:, None], cells.columns[cell]][:, None, :]
-    total = tensor.sum(axis=2, keepdims=True)
-    tensor /= np.where(filled[:, :, None], total, 1.0)
-    return StackedRows(cells, tensor, chunk_block, slot_of.reshape(n_particles, n_points))
+    tensor = (u[:, None] * v[None, :]).reshape(m, slots, chunks)
+    tensor *= weights[particle, cells.columns[cell].T][:, None, :]
+    tensor /= np.where(filled, tensor.sum(axis=0), 1.0)
+    values = np.ascontiguousarray(tensor.transpose(2, 1, 0))  # (T, slots, m) for the products per chunk
+    return StackedRows(cells, values, chunk_block, slot_of.reshape(n_particles, n_points))
