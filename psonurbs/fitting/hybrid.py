@@ -124,3 +124,21 @@ class KnotWeightSearch:
             return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))
         except np.linalg.LinAlgError:
             return np.inf
+
+
+def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray) -> float:
+    """The smoothing weight with the least leave-one-out error at these parameters.
+
+    After the polish the parameters are close to foot points, so the choice is sharp:
+    vanishing where the net represents the shape, larger where the data are noisy.
+    """
+    rows = layout.rows(uv, weights, inner_u, inner_v)
+    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
+    errors = []
+    for s in grid:
+        try:
+            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points))
+        except np.linalg.LinAlgError:
+            errors.append(np.inf)
+    return float(grid[int(np.argmin(errors))])

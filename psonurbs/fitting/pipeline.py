@@ -26,7 +26,7 @@ from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
-from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
+from .hybrid import KnotWeightSearch, loo_smoothing
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
 from .parametrise import Parametrisation
@@ -54,24 +54,6 @@ class FitResult:
 
 def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
-
-
-def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray) -> float:
-    """The smoothing weight with the least leave-one-out error at these parameters.
-
-    After the polish the parameters are close to foot points, so the choice is sharp:
-    vanishing where the net represents the shape, larger where the data are noisy.
-    """
-    rows = layout.rows(uv, weights, inner_u, inner_v)
-    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
-    errors = []
-    for s in grid:
-        try:
-            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points))
-        except np.linalg.LinAlgError:
-            errors.append(np.inf)
-    return float(grid[int(np.argmin(errors))])
 
 
 def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> bool:
@@ -113,16 +95,14 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots, weights and smoothing (least-squares control points) from the
-    classical fit with its smoothing chosen by leave-one-out, the best kept only if it
-    predicts the points it never saw better (:mod:`psonurbs.fitting.validation`), then
-    the polish and the optional joint refinement; with ``robust``, on the inliers only
-    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
+    """Swarm over knots, weights and smoothing (least-squares control points), the best
+    kept only if it predicts the points it never saw better than the classical fit
+    (:mod:`psonurbs.fitting.validation`), then the polish and the optional joint
+    refinement; with ``robust``, on the inliers only (:mod:`psonurbs.fitting.robust`: of
+    the classical fit first, of the polished one after)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
     points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen],
-                                                 *KnotWeightSearch.uniform(layout)))
     search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),

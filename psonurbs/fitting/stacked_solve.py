@@ -18,6 +18,8 @@ leverages read the blocks of M^-1 at each cell's columns from its selected inver
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from psonurbs.geometry.stacked_rows import CellLayout, StackedRows
@@ -51,9 +53,16 @@ class StackedLeastSquares:
         r, c = np.nonzero(matrix)
         return self.order.position[r], self.order.position[c], matrix[r, c]
 
-    def _pairs(self, size: int) -> np.ndarray:
-        """(cells * m * m,) flat indices into a (size, size) matrix of each cell's column pairs."""
-        return (self.columns[:, :, None] * size + self.columns[:, None, :]).ravel()
+    @lru_cache(maxsize=8)  # noqa: B019 - one per batch size, for the life of the search
+    def _pair_index(self, n_particles: int) -> np.ndarray:
+        """(P * cells * m * m,) flat indices into (P, n, n) of every block's column pairs."""
+        pairs = (self.columns[:, :, None] * self.n + self.columns[:, None, :]).ravel()
+        return ((np.arange(n_particles) * self.n * self.n)[:, None] + pairs).ravel()
+
+    @lru_cache(maxsize=8)  # noqa: B019
+    def _column_index(self, n_particles: int) -> np.ndarray:
+        """(P * cells * m,) flat indices into (P, n) of every block's columns."""
+        return ((np.arange(n_particles) * self.n)[:, None] + self.columns.ravel()).ravel()
 
     def normal_matrices(self, rows: StackedRows, slot_weights: np.ndarray | None,
                         smoothing: np.ndarray) -> np.ndarray:
@@ -61,8 +70,8 @@ class StackedLeastSquares:
         n_particles, n = rows.n_particles, self.n
         weighted = rows.values if slot_weights is None else rows.values * slot_weights[..., None]
         blocks = rows.per_block(np.matmul(weighted.transpose(0, 2, 1), rows.values))  # (P * cells, m, m)
-        index = ((np.arange(n_particles) * n * n)[:, None] + self._pairs(n)).ravel()
-        out = np.bincount(index, blocks.ravel(), n_particles * n * n).reshape(n_particles, n, n)
+        out = np.bincount(self._pair_index(n_particles), blocks.ravel(), n_particles * n * n)
+        out = out.reshape(n_particles, n, n)
         diagonal = np.arange(n)
         trace = out[:, diagonal, diagonal].sum(axis=1)
         for r, c, values, weight in self.terms:
@@ -82,19 +91,20 @@ class StackedLeastSquares:
                                        self.order.half_bandwidth, self.order.block)
         weighted = slot_data if slot_weights is None else slot_data * slot_weights[..., None]
         local = rows.per_block(np.matmul(rows.values.transpose(0, 2, 1), weighted))  # (P * cells, m, 3)
-        index = ((np.arange(n_particles) * n)[:, None] + self.columns.ravel()).ravel()
+        index = self._column_index(n_particles)
         rhs = np.stack([np.bincount(index, local[..., k].ravel(), n_particles * n)
-                        for k in range(data.shape[1])], axis=1).reshape(n_particles, n, -1)
-        control = factor.solve(rhs)
-        at_cells = control[:, self.columns].reshape(local.shape)  # (P * cells, m, 3)
-        return np.matmul(rows.values, at_cells[rows.chunk_block]) - slot_data, factor, slot_weights
+                        for k in range(data.shape[1])], axis=1)
+        control = factor.solve(rhs.reshape(n_particles, n, -1)).reshape(n_particles * n, -1)
+        at_cells = np.take(control, index, axis=0).reshape(local.shape)  # (P * cells, m, 3)
+        fitted = np.matmul(rows.values, np.take(at_cells, rows.chunk_block, axis=0))
+        return fitted - slot_data, factor, slot_weights
 
     def leverages(self, rows: StackedRows, factor: StackedBandedCholesky) -> np.ndarray:
         """``h_i = r_i^T M^-1 r_i`` at the slots, (T, slots)."""
-        inverse = factor.selected_inverse()
         m = self.columns.shape[1]
-        blocks = inverse.reshape(rows.n_particles, -1)[:, self._pairs(inverse.shape[1])].reshape(-1, m, m)
-        return np.einsum("tsm,tsm->ts", np.matmul(rows.values, blocks[rows.chunk_block]), rows.values)
+        blocks = np.take(factor.selected_inverse(), self._pair_index(rows.n_particles)).reshape(-1, m, m)
+        return np.einsum("tsm,tsm->ts", np.matmul(rows.values, np.take(blocks, rows.chunk_block, axis=0)),
+                         rows.values)
 
     def errors(self, rows: StackedRows, data: np.ndarray, smoothing: np.ndarray, cross_validation: bool,
                point_weights: np.ndarray | None = None) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import closest_parameters
 
-from .hybrid import KnotWeightSearch
+from .hybrid import KnotWeightSearch, loo_smoothing
 from .polish import polish
 
 Z = 2.0  # standard errors by which the swarm must win
@@ -63,7 +63,12 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
                     uv: np.ndarray, seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, HeldOutTest | None]:
     """The swarm's best particle or the classical start, by :func:`paired_test` on the
     points outside ``seen``; the best itself (and no test) when every point was seen or
-    the best is the classical start."""
+    the best is the classical start.
+
+    Each candidate is judged as the pipeline would finish it: polished on the swarm's
+    points with its own smoothing, the smoothing then chosen again by leave-one-out at
+    the corrected parameters (the classical start carries the configured smoothing,
+    which the classical fit does not end with)."""
     unseen = np.setdiff1d(np.arange(len(points)), seen)
     classical = search.classical()
     if len(unseen) < 2 or np.array_equal(best, classical):
@@ -71,8 +76,12 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
     distances = []
     for x in (classical, best):
         inner_u, inner_v, weights, smoothing = search.split(x)
-        surface = polish(layout, search.solver.with_smoothing(smoothing), points[seen], uv[seen], weights,
-                         inner_u, inner_v, polish_iterations)[1]
+        solver = search.solver.with_smoothing(smoothing)
+        corrected = polish(layout, solver, points[seen], uv[seen], weights, inner_u, inner_v, polish_iterations)[2]
+        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected, weights,
+                                                     inner_u, inner_v))
+        control = solver.solve(layout.rows(corrected, weights, inner_u, inner_v), points[seen])
+        surface = layout.surface(control, weights, inner_u, inner_v)
         distances.append(closest_parameters(surface, points[unseen])[1])
     test = paired_test(*distances)
     return (best if test.kept == "swarm" else classical), test
