@@ -1,23 +1,34 @@
-"""Whether the swarm's knots beat the classical ones: a paired test on points it never saw.
+"""Whether the swarm's knots beat the classical ones: paired tests on points it never saw.
 
 Among thousands of particles, the least leave-one-out error on one sample is an
-optimistic pick: on noisy data some knots and weights fit that sample's noise. Both
-candidates, the swarm's best and the classical start (uniform knots, unit weights), are
-polished on the swarm's points and judged on the others. With
-``d_i = e_swarm,i^2 - e_classical,i^2`` the paired difference of squared distances at
-held-out point i (the noise common to both cancels in it), the swarm is kept only if
+optimistic pick: on noisy data some knots and weights fit that sample's noise. So the
+swarm's best and the classical start (uniform knots, unit weights) are both fitted to
+the swarm's points and half of the others, and compared on the other half. With
+``d_i = e_swarm,i^2 - e_classical,i^2`` the paired difference of squared errors at
+held-out point i (the noise common to both cancels in it) and
+``z = mean(d) / (sd(d) / sqrt(n))``, the swarm is kept only if
 
-    mean(d) + Z * sd(d) / sqrt(n) < 0,          Z = 2,
+* at the first parameters, where the swarm chose its knots, it predicts the held-out
+  points better by more than ``Z`` standard errors (``z < -Z``): the gain is real, not
+  the sample's noise; and
+* once both are polished (parameters moved to foot points), it is not significantly
+  farther from them (``z < Z``), and its surface is not significantly farther from the
+  data (``z < Z`` over a grid of surface samples, each one's distance to the nearest
+  point of the cloud): the gain turns neither into a worse fit nor into a surface that
+  overshoots the data.
 
-i.e. if it is closer to the unseen points by more than twice the standard error of that
-mean: a one-sided paired z-test at about 2%. A difference within the sampling error of
-the comparison keeps the classical fit, which has no knots tuned to anything.
+Point-to-surface distances see only where the points are. A polish of uniform knots on
+a steep step slides the points off a fold the surface makes, and the fold is invisible
+in them; a surface that extrapolates farther past the data's edges is invisible too.
+The surface-to-data distances see both. A difference within the sampling error keeps
+the classical fit, which has no knots tuned to anything.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import closest_parameters
@@ -25,30 +36,23 @@ from psonurbs.geometry.projection import closest_parameters
 from .hybrid import KnotWeightSearch, loo_smoothing
 from .polish import polish
 
-Z = 2.0  # standard errors by which the swarm must win
+Z = 2.0  # standard errors: a one-sided paired z-test at about 2%
+ROUNDS = 10  # polish rounds per candidate: most of the parameter correction, a tenth of the time
+SAMPLES = 64  # surface samples per direction for the surface-to-data distances
 
 
 @dataclass(frozen=True)
-class HeldOutTest:
-    """The comparison on the held-out points (distances in the fit's normalised units)."""
+class PairedTest:
+    """One comparison on the held-out points (errors in the fit's normalised units)."""
 
     points: int
-    classical_error: float  # rms distance of the held-out points to the polished classical fit
+    classical_error: float  # rms error of the held-out points under the classical fit
     swarm_error: float
     z: float  # mean(d) / standard error: negative where the swarm is closer
 
-    @property
-    def kept(self) -> str:
-        return "swarm" if self.z < -Z else "classical"
 
-    def to_dict(self, scale: float = 1.0) -> dict:
-        return {"held_out_points": self.points,
-                "held_out_error": {"classical": self.classical_error * scale, "swarm": self.swarm_error * scale},
-                "held_out_z": self.z, "kept": self.kept}
-
-
-def paired_test(classical: np.ndarray, swarm: np.ndarray) -> HeldOutTest:
-    """The test on per-point distances (n,) of the two candidates."""
+def paired_test(classical: np.ndarray, swarm: np.ndarray) -> PairedTest:
+    """The paired z statistic of per-point errors (n,) of the two candidates."""
     d = swarm ** 2 - classical ** 2
     spread = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
     mean = float(np.mean(d))
@@ -56,32 +60,60 @@ def paired_test(classical: np.ndarray, swarm: np.ndarray) -> HeldOutTest:
         z = mean * np.sqrt(len(d)) / spread
     else:
         z = 0.0 if mean == 0 else float(np.copysign(np.inf, mean))
-    return HeldOutTest(len(d), float(np.sqrt(np.mean(classical ** 2))), float(np.sqrt(np.mean(swarm ** 2))), z)
+    return PairedTest(len(d), float(np.sqrt(np.mean(classical ** 2))), float(np.sqrt(np.mean(swarm ** 2))), z)
+
+
+@dataclass(frozen=True)
+class Validation:
+    first: PairedTest  # at the first parameters: the swarm's own measure, out of sample
+    polished: PairedTest  # held-out points to both surfaces polished
+    overshoot: PairedTest  # samples of both polished surfaces to the cloud
+
+    @property
+    def kept(self) -> str:
+        return "swarm" if self.first.z < -Z and self.polished.z < Z and self.overshoot.z < Z else "classical"
+
+    def to_dict(self) -> dict:
+        return {"held_out_points": self.polished.points,
+                "held_out_error": {"classical": self.polished.classical_error, "swarm": self.polished.swarm_error},
+                "held_out_z": {"first": self.first.z, "polished": self.polished.z, "overshoot": self.overshoot.z},
+                "kept": self.kept}
 
 
 def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray,
-                    uv: np.ndarray, seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, HeldOutTest | None]:
-    """The swarm's best particle or the classical start, by :func:`paired_test` on the
-    points outside ``seen``; the best itself (and no test) when every point was seen or
-    the best is the classical start.
+                    uv: np.ndarray, seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, Validation | None]:
+    """The swarm's best particle or the classical start (see the module doc); the best
+    itself (and no test) when fewer than four points were not seen or the best is the
+    classical start.
 
-    Each candidate is judged as the pipeline would finish it: polished on the swarm's
-    points with its own smoothing, the smoothing then chosen again by leave-one-out at
-    the corrected parameters (the classical start carries the configured smoothing,
-    which the classical fit does not end with)."""
+    The candidates are fitted to the swarm's points and every other unseen point (closer
+    to the final fit, which sees every point, than the swarm's sample alone: knots chosen
+    for a sample can beat uniform ones on it and lose with all the points) and judged on
+    the rest. Each is finished as the pipeline finishes it: the smoothing chosen by
+    leave-one-out (the classical start carries the configured one, which the classical
+    fit does not end with), polished with it (``ROUNDS`` rounds at most, the same for
+    both), the smoothing chosen again at the corrected parameters."""
     unseen = np.setdiff1d(np.arange(len(points)), seen)
     classical = search.classical()
-    if len(unseen) < 2 or np.array_equal(best, classical):
+    if len(unseen) < 4 or np.array_equal(best, classical):
         return best, None
-    distances = []
+    judged, fitted = unseen[::2], np.concatenate([seen, unseen[1::2]])
+    cloud = cKDTree(points)
+    first, polished, overshoot = [], [], []
     for x in (classical, best):
         inner_u, inner_v, weights, smoothing = search.split(x)
+        knots = (weights, inner_u, inner_v)
+        if x is classical:
+            smoothing = loo_smoothing(layout, search.solver, points[seen], uv[seen], *knots)
         solver = search.solver.with_smoothing(smoothing)
-        corrected = polish(layout, solver, points[seen], uv[seen], weights, inner_u, inner_v, polish_iterations)[2]
-        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected, weights,
-                                                     inner_u, inner_v))
-        control = solver.solve(layout.rows(corrected, weights, inner_u, inner_v), points[seen])
-        surface = layout.surface(control, weights, inner_u, inner_v)
-        distances.append(closest_parameters(surface, points[unseen])[1])
-    test = paired_test(*distances)
+        control = solver.solve(layout.rows(uv[fitted], *knots), points[fitted])
+        first.append(np.linalg.norm(layout.rows(uv[judged], *knots) @ control - points[judged], axis=1))
+        corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS),
+                           realign=True)[2]
+        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], *knots))
+        control = solver.solve(layout.rows(corrected, *knots), points[fitted])
+        surface = layout.surface(control, *knots)
+        polished.append(closest_parameters(surface, points[judged])[1])
+        overshoot.append(cloud.query(surface.evaluate_grid(*surface.parameter_grid(SAMPLES, SAMPLES)).reshape(-1, 3))[0])
+    test = Validation(paired_test(*first), paired_test(*polished), paired_test(*overshoot))
     return (best if test.kept == "swarm" else classical), test
