@@ -119,9 +119,8 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
     solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], weights,
                                                  inner_u, inner_v))
-    # the data's edges held on the domain's: the surface ends where the data end
     control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                        config.polish_iterations, realign=True)
+                                        config.polish_iterations)
     steps += more
     refine_steps, kept = 0, False
     if config.refine:

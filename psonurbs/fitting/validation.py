@@ -108,8 +108,7 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
         solver = search.solver.with_smoothing(smoothing)
         control = solver.solve(layout.rows(uv[fitted], *knots), points[fitted])
         first.append(np.linalg.norm(layout.rows(uv[judged], *knots) @ control - points[judged], axis=1))
-        corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS),
-                           realign=True)[2]
+        corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS))[2]
         solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], *knots))
         control = solver.solve(layout.rows(corrected, *knots), points[fitted])
         surface = layout.surface(control, *knots)
