@@ -38,12 +38,14 @@ from psonurbs.errors import ConfigError, existing_file
 
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
+PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
 
 __all__ = [
     "SwarmConfig",
     "FitConfig",
     "TOPOLOGIES",
     "STRATEGIES",
+    "PARAMETRISATIONS",
     "load_config",
     "config_from_dict",
     "BOUNDS",
@@ -232,6 +234,9 @@ class FitConfig:
     remove_outliers: drop statistical outliers (by neighbour distances) before fitting.
     robust: leave out of the fit the points more than 10 robust standard deviations off
         it (gross outliers, :mod:`psonurbs.fitting.robust`); the metrics still count them.
+    parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
+        (the cloud's own graph laid flat, then corrected from a coarse net to the
+        configured one) or "auto" (the plane where the cloud is a height field over it).
     """
 
     orders: tuple[int, int] = (3, 3)
@@ -249,6 +254,7 @@ class FitConfig:
     refine: bool = True
     remove_outliers: bool = False
     robust: bool = True
+    parametrisation: str = "auto"
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -270,6 +276,7 @@ class FitConfig:
         if self.topology == "sphere" and self.net_size[1] < 3:
             raise ConfigError(f"config key 'net_size': a sphere needs at least 3 control points along v "
                               f"(the first and last collapse to the poles), got {self.net_size[1]}")
+        put("parametrisation", _choice("parametrisation", self.parametrisation, PARAMETRISATIONS))
         put("strategy", _choice("strategy", self.strategy, STRATEGIES))
         swarm = self.swarm
         if swarm is None:

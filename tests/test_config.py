@@ -72,7 +72,8 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust"]
+                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust",
+                       "parametrisation"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
@@ -129,6 +130,8 @@ def test_every_sample_config_loads(path):
      "cfg.yaml: unknown config key 'swarm.partciles' (known: particles, iterations, inertia, "
      "c1, c2, seed); did you mean 'swarm.particles'?"),
     ("net_sise: [5, 5]\n", "cfg.yaml: unknown config key 'net_sise'"),
+    ("parametrisation: isomap\n",
+     "cfg.yaml: config key 'parametrisation': expected one of auto, plane, intrinsic, got 'isomap'"),
     ("swarm:\n  particles: -3\n",
      "cfg.yaml: config key 'swarm.particles': expected a positive integer, got -3"),
     ("swarm:\n  particles: true\n",

@@ -288,9 +288,9 @@ def check_contract(result, out: Path, cloud: Path, seconds: float, bound: float 
     if result.exit_code == 2:
         assert stem_files == [], (result.stderr, stem_files)  # nothing of a refused cloud
         return
-    status = "ok" if result.exit_code == 0 else "gate-exceeded"
     document = json.loads((out / f"{cloud.stem}.json").read_text())
     assert all(math.isfinite(v) for v in document["metrics"].values() if isinstance(v, float))
+    status = ("suspect" if document["metrics"].get("suspect") else "ok") if result.exit_code == 0 else "gate-exceeded"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["exit_code"] == result.exit_code and [c["status"] for c in summary["clouds"]] == [status]
 

@@ -5,14 +5,17 @@ of both directions, the weights and the smoothing weight); inside its fitness th
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-left out first (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
-it is nearer than the classical start to the points the swarm never saw
-(:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
+left out first (:mod:`psonurbs.fitting.robust`). The best particle is kept only if it predicts
+the points the swarm never saw better than the classical start, by paired tests
+(:mod:`psonurbs.fitting.validation`); it is polished (parameter correction), the smoothing re-chosen by
 leave-one-out at the corrected parameters and polished again; then, with ``refine``,
 control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.refine`),
 anchored to the data's edges and kept if the gain pays for the freed weights
 (:func:`pays_for_weights`). ``strategy: full`` is the paper's own search space
 (Eq. 10, :mod:`psonurbs.fitting.paper`): the swarm's best surface is the result.
+The result is checked without ground truth (:mod:`psonurbs.fitting.checks`: the surface
+or its net far outside the cloud's box, a fold, surface far from every point); a fit
+that fails a check carries warnings and says so in its notes.
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
+from .checks import check_fit
 from .hybrid import KnotWeightSearch, loo_smoothing
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
@@ -50,6 +54,7 @@ class FitResult:
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
+    warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.checks`)
 
 
 def rms(distances: np.ndarray) -> float:
@@ -177,6 +182,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         run = run_full if config.strategy == "full" else run_hybrid
         surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
         _, dist = closest_parameters(surface, cloud.frame.to_local(points))
+        checks = check_fit(surface, cloud.points)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
                          surface.closed_u, surface.closed_v)
@@ -193,6 +199,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
         "outliers": int(info.get("outliers", 0)),
+        **checks.to_dict(),
     }
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
@@ -214,4 +221,5 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"topology auto: {topology} (" + ", ".join(
             f"{name} {s['classical_error_relative']:.2e}" if "rejected" not in s else f"{name} rejected: {s['rejected']}"
             for name, s in scores.items()) + ")")
-    return FitResult(world, topology, metrics, curve, info, notes)
+    notes += [f"suspect fit: {warning}" for warning in checks.warnings]
+    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings)

@@ -35,7 +35,7 @@ from .cluster import Scheduler
 from .gate import Gate
 from .heap import keep_freed_memory
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, printable, worker_lost_row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, SUSPECT, Row, printable, worker_lost_row
 from .workers import pool_run
 
 __all__ = ["FitOutcome", "fit_cloud", "fit_job", "preflight", "read_job", "run_batch"]
@@ -143,6 +143,7 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         row.rmse_relative = _number(metrics.get("rmse_relative"))
         row.max_error_relative = _number(metrics.get("max_error_relative"))
         row.notes = notes
+        row.warnings = list(result.warnings)
         outputs = dict(document=document, vertices=vertices, triangles=triangles,
                        curve_header=list(result.curve_header), curve_rows=result.curve,
                        obj_extra=obj_extra, extra_files=extra_files)
@@ -202,9 +203,11 @@ def _finish(outcome: FitOutcome, out_dir: Path, gate: Gate) -> Row:
         row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
         row.detail = traceback.format_exc()
         return row
-    reason = gate.check(outcome.metrics) if outcome.metrics else ""
+    reason = gate.check(outcome.metrics, row.warnings) if outcome.metrics else ""
     if reason:
         row.status = GATE
+    elif row.warnings:
+        row.status = SUSPECT
     row.message = "; ".join([m for m in [reason, *row.notes] if m])
     return row
 
