@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 from conftest import franke, franke_z
 from scipy.spatial import cKDTree
 from test_fit import config
@@ -156,3 +157,23 @@ def test_junk_steers_neither_the_projection_plane_nor_the_fit():
     assert np.sqrt(np.mean(deviation["junk"] ** 2)) < 1.2 * np.sqrt(np.mean(deviation["clean"] ** 2))
     assert deviation["junk"].max() < 4.0
     assert fits["clean"].metrics["outliers"] == 0 and 60 <= fits["junk"].metrics["outliers"] <= 75
+
+
+def test_the_weighted_paired_test_reduces_to_the_plain_one():
+    """Unit weights give the plain paired test; weight 0 on a point is the test without it;
+    the weighted mean and spread of d follow sum w d / sum w with n_eff = (sum w)^2 / sum w^2."""
+    from psonurbs.fitting.validation import paired_test
+    rng = np.random.default_rng(5)
+    classical, swarm = np.abs(rng.normal(1.0, 0.3, 200)), np.abs(rng.normal(0.95, 0.3, 200))
+    plain = paired_test(classical, swarm)
+    unit = paired_test(classical, swarm, np.ones(200))
+    assert unit.z == pytest.approx(plain.z, rel=1e-12) and unit.swarm_error == pytest.approx(plain.swarm_error)
+    w = np.ones(200)
+    w[:20] = 0.0
+    assert paired_test(classical, swarm, w).z == pytest.approx(paired_test(classical[20:], swarm[20:]).z, rel=1e-12)
+    w = rng.uniform(0.2, 1.0, 200)
+    d = swarm ** 2 - classical ** 2
+    mean = np.sum(w * d) / np.sum(w)
+    n_eff = np.sum(w) ** 2 / np.sum(w ** 2)
+    sd = np.sqrt(np.sum(w * (d - mean) ** 2) / np.sum(w) * n_eff / (n_eff - 1))
+    assert paired_test(classical, swarm, w).z == pytest.approx(mean * np.sqrt(n_eff) / sd, rel=1e-12)

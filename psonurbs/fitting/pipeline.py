@@ -6,9 +6,10 @@ control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
 judged locally before anything is parametrised (:mod:`psonurbs.fitting.outliers`) and
-every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
-it is nearer than the classical start to the points the swarm never saw
-(:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
+every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.robust`). The best
+particle is kept only if it predicts the points the swarm never saw better than the
+classical start, by paired tests (:mod:`psonurbs.fitting.validation`); it is polished
+(parameter correction), the smoothing re-chosen by
 leave-one-out at the corrected parameters and polished again; then, with ``refine``,
 control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.refine`),
 anchored to the data's edges and kept if the gain pays for the freed weights
@@ -31,7 +32,7 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .checks import check_fit
-from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
+from .hybrid import KnotWeightSearch, loo_smoothing
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .outliers import OUTLIER_SIGMAS, local_outliers
 from .paper import FullSearch
@@ -50,6 +51,7 @@ from .robust import (
 )
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
+from .validation import held_out_choice
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 
@@ -68,50 +70,6 @@ class FitResult:
 
 def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
-
-
-def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                  point_weights: np.ndarray | None = None) -> float:
-    """The smoothing weight with the least leave-one-out error at these parameters.
-
-    After the polish the parameters are close to foot points, so the choice is sharp:
-    vanishing where the net represents the shape, larger where the data are noisy.
-    """
-    rows = layout.rows(uv, weights, inner_u, inner_v)
-    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
-    errors = []
-    for s in grid:
-        try:
-            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points, point_weights))
-        except np.linalg.LinAlgError:
-            errors.append(np.inf)
-    return float(grid[int(np.argmin(errors))])
-
-
-def validated(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray, uv: np.ndarray,
-              seen: np.ndarray, polish_iterations: int, point_weights: np.ndarray | None = None
-              ) -> tuple[np.ndarray, dict]:
-    """The swarm's best particle, or the classical start if the best does worse on the
-    points the swarm never saw.
-
-    Among thousands of particles, the least leave-one-out error on one sample is an
-    optimistic pick (on noisy data: knots and weights tuned to that sample's noise).
-    Both are polished on the swarm's points; the surface nearer the others is kept.
-    """
-    unseen = np.setdiff1d(np.arange(len(points)), seen)
-    candidates = {"classical": search.classical(), "swarm": best}
-    if len(unseen) == 0 or np.array_equal(best, candidates["classical"]):
-        return best, {}
-    seen_weights, unseen_weights = (None, None) if point_weights is None else (point_weights[seen], point_weights[unseen])
-    errors = {}
-    for name, x in candidates.items():
-        inner_u, inner_v, weights, smoothing = search.split(x)
-        surface = polish(layout, search.solver.with_smoothing(smoothing), points[seen], uv[seen], weights,
-                         inner_u, inner_v, polish_iterations, point_weights=seen_weights)[1]
-        errors[name] = weighted_rms(closest_parameters(surface, points[unseen])[1] ** 2, unseen_weights)
-    kept = "swarm" if errors["swarm"] < errors["classical"] else "classical"
-    return candidates[kept], {"held_out_points": int(len(unseen)), "held_out_error": errors, "kept": kept}
 
 
 def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int,
@@ -156,10 +114,12 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots, weights and smoothing (least-squares control points), then the
-    polish and the optional joint refinement; with ``robust``, every solve weighted by the
-    robust loss (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the
-    polished one after), the points of weight 0 left out."""
+    """Swarm over knots, weights and smoothing (least-squares control points), the best
+    kept only if it predicts the points it never saw better than the classical fit
+    (:mod:`psonurbs.fitting.validation`), then the polish and the optional joint
+    refinement; with ``robust``, every solve weighted by the robust loss
+    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one
+    after), the points of weight 0 left out."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     w = classical_weights(layout, solver, cloud.points, par.uv, cloud.neighbourhoods) if config.robust \
         else np.ones(len(cloud))
@@ -171,7 +131,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    chosen, validation = validated(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
+    chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
     inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
@@ -205,6 +165,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                                 layout.n_free, c)
         if kept:
             surface = refined
+    validation = {} if test is None else test.to_dict()
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical())), **validation},
