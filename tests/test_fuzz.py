@@ -330,7 +330,9 @@ def valid_configs(draw) -> str:
            "polish_iterations": draw(st.sampled_from([0, 1, 3])), "tessellation": [draw(st.integers(2, 30))] * 2,
            "weight_bounds": [lo, hi], "min_knot_gap": draw(st.sampled_from([1e-9, 0.2, 0.999])),
            "cross_validation": draw(st.booleans()), "refine": draw(st.booleans()),
-           "remove_outliers": draw(st.booleans()), "robust": draw(st.booleans())}
+           "robust": draw(st.booleans())}
+    if draw(st.booleans()):  # its other name, which must agree with it
+        doc["remove_outliers"] = doc["robust"]
     return json.dumps(doc)
 
 

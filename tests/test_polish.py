@@ -1,9 +1,12 @@
-"""Parameter correction: foot points on the edges, and the Anderson mixing of the polish."""
+"""Parameter correction: foot points on the edges, and the Anderson mixing of the polish;
+the joint refinement with point weights."""
 from __future__ import annotations
 
 import numpy as np
 
 from psonurbs.fitting.polish import AndersonMixing
+from psonurbs.fitting.refine import refine_jointly
+from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import GridStart, closest_parameters
 
@@ -110,3 +113,25 @@ def test_only_directions_with_edges_are_aligned_to_the_domain():
                 assert out[:, k].min() < 0.01 and out[:, k].max() > 0.99, (topology, k)
             else:  # a closed direction, or a sphere's pole-to-pole one: no edge to align
                 np.testing.assert_array_equal(out[:, k], uv[:, k])
+
+
+def test_joint_refinement_with_an_integer_weight_is_the_point_given_twice():
+    """The weighted refinement scales every point's residual and Jacobian rows by
+    sqrt(weight): weight 2 on a point is the point twice (same start, same steps)."""
+    layout = NetLayout((4, 4), (2, 2))
+    rng = np.random.default_rng(3)
+    uv = rng.random((120, 2))
+    pts = np.column_stack([uv, 0.2 * np.sin(3 * uv[:, 0]) * uv[:, 1]]) + rng.normal(0, 0.01, (120, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-4)
+    ones = np.ones(layout.n_free)
+    control = solver.solve(layout.rows(uv, ones), pts)
+    w = np.ones(120)
+    w[[5, 17, 60]] = 2.0
+    twice = np.r_[np.arange(120), [5, 17, 60]]
+    bounds = np.log([0.2, 5.0])
+    weighted = refine_jointly(layout, solver, pts, uv, control, ones, None, None, bounds, point_weights=w)
+    repeated = refine_jointly(layout, solver, pts[twice], uv[twice], control, ones, None, None, bounds)
+    np.testing.assert_allclose(weighted[0], repeated[0], rtol=1e-7, atol=1e-9)  # control points
+    np.testing.assert_allclose(weighted[1], repeated[1], rtol=1e-7)  # weights
+    np.testing.assert_allclose(weighted[2], repeated[2][:120], atol=1e-9)  # parameters
+    assert weighted[3] == repeated[3]

@@ -10,6 +10,8 @@ import numpy as np
 
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
+from .solve import weighted_rms
+
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
     """A straight line ``across = a + b * along`` through the data's edge, evaluated at
@@ -94,10 +96,10 @@ class Polished(NamedTuple):
 
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
            weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int,
-           realign: bool = False, align: bool = True) -> Polished:
+           realign: bool = False, align: bool = True, point_weights: np.ndarray | None = None) -> Polished:
     """Alternate the least-squares solve with parameter correction while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
-    does not lower the error).
+    does not lower the error). ``point_weights`` (N,) weigh the solve and the error.
 
     The data's extent is first aligned onto the domain (``align``; not for parameters
     that are foot points on a surface already), with ``realign`` at every round.
@@ -108,10 +110,10 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     uv = best_image = align_to_domain(uv, layout) if align or realign else uv
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
-        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
+        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points, point_weights)
         surface = layout.surface(control, weights, inner_u, inner_v)
         new_uv, dist = closest_parameters(surface, points, uv)
-        new_rmse = float(np.sqrt(np.mean(dist ** 2)))
+        new_rmse = weighted_rms(dist ** 2, point_weights)
         if new_rmse >= rmse * (1.0 - 1e-4):
             if not mixer.mixing:
                 break

@@ -4,7 +4,10 @@ Alternating parameter correction with linear least squares converges slowly and
 cannot move the weights. Here all of them are the unknowns of one non-linear least
 squares problem (the knots stay where the swarm put them):
 
-    min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+    min  sum_i c_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+
+(c_i > 0 the robust loss's point weights, 1 without them; below, every point's residual
+and Jacobian rows are scaled by sqrt(c_i), which makes the problem the unweighted one)
 
 With R the rational basis at the points, the Jacobian of point i's residual is
 
@@ -43,16 +46,17 @@ REFINE_CHUNK = 1 << 14  # points whose Jacobian blocks are formed together: some
 
 class JointProblem:
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 inner_u: np.ndarray, inner_v: np.ndarray):
+                 inner_u: np.ndarray, inner_v: np.ndarray, point_weights: np.ndarray | None = None):
         self.layout, self.solver, self.points = layout, solver, points
         self.inner = (inner_u, inner_v)
         self.n = layout.n_free
+        self.root = np.ones(len(points)) if point_weights is None else np.sqrt(point_weights)  # sqrt(c_i)
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
         """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
-        residual = rows @ control - self.points
-        regulariser = self.solver.regulariser(float(np.sum(rows.values ** 2)))  # per coordinate
+        residual = self.root[:, None] * (rows @ control - self.points)
+        regulariser = self.solver.regulariser(float(np.sum(self.root[:, None] ** 2 * rows.values ** 2)))
         objective = float(np.sum(residual ** 2) + np.sum(control * (regulariser @ control)))
         return {"rows": rows, "residual": residual, "regulariser": regulariser, "objective": objective}
 
@@ -75,10 +79,11 @@ class JointProblem:
         parts = []
         for part in chunks(len(res), REFINE_CHUNK):
             piece = rows.take(part)
+            scaled = piece.scaled(self.root[part])  # the rows of the weighted problem, sqrt(c_i) R
             blocks = piece.blocks()
-            vs = piece.values[:, :, None] * (control[piece.columns] - (piece @ control)[:, None, :])  # (c, m, 3)
+            vs = scaled.values[:, :, None] * (control[piece.columns] - (piece @ control)[:, None, :])  # (c, m, 3)
             for batch in blocks.batches:
-                v, vs_b = blocks.pad(piece.values, batch), blocks.pad(vs, batch)
+                v, vs_b = blocks.pad(scaled.values, batch), blocks.pad(vs, batch)
                 plain = blocks.place(np.matmul(v.transpose(0, 2, 1), v), batch)
                 for k in range(3):
                     gram[ctrl[k], ctrl[k]] += plain
@@ -86,14 +91,14 @@ class JointProblem:
                     gram[ctrl[k], wts] += cross
                     gram[wts, ctrl[k]] += cross.T
                     gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
-            g[:3 * n] += piece.project(res[part]).ravel()
+            g[:3 * n] += scaled.project(res[part]).ravel()
             g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
-            parts.append((part, piece, blocks))
+            parts.append((part, piece, scaled, blocks))
         penalty = np.kron(ev["regulariser"], np.eye(3))
         gram[:3 * n, :3 * n] += penalty
         g[:3 * n] += penalty @ control.ravel()
-        return {"parts": parts, "control": control, "jl": np.stack([su, sv], axis=2), "gram": gram, "g": g,
-                "residual": res}
+        jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
+        return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
 
     @staticmethod
     def _point_terms(lin: dict, part: slice, piece: Rows, damping: float, frozen: np.ndarray | None) -> dict:
@@ -135,9 +140,9 @@ class JointProblem:
         n = self.n
         ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
         schur, rhs = lin["gram"].copy(), -lin["g"]
-        for part, piece, blocks in lin["parts"]:
+        for part, piece, scaled, blocks in lin["parts"]:
             q = self._point_terms(lin, part, piece, damping, frozen)
-            v, jl, t, l11, l22, ratio = piece.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
+            v, jl, t, l11, l22, ratio = scaled.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
             a = np.stack([jl[:, :, 0] / l11[:, None], (jl[:, :, 1] - jl[:, :, 0] * ratio[:, None]) / l22[:, None]],
                          axis=2)  # (c, 3, 2): a_ek
             z = v[:, :, None] * np.stack([t[:, :, 0] / l11[:, None],
@@ -159,25 +164,27 @@ class JointProblem:
                 schur[wts, wts] -= sum(blocks.place(np.matmul(zb[..., e].transpose(0, 2, 1), zb[..., e]), batch)
                                        for e in range(2))
             w_vec = self._c_inverse(q, q["c_vec"])
-            rhs[:3 * n] += piece.project(np.sum(jl * w_vec[:, None, :], axis=2)).ravel()
+            rhs[:3 * n] += scaled.project(np.sum(jl * w_vec[:, None, :], axis=2)).ravel()
             rhs[wts] += np.bincount(piece.columns.ravel(), (v * np.sum(t * w_vec[:, None, :], axis=2)).ravel(), n)
         schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
         d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
         d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
         d_uv = np.empty((len(lin["residual"]), 2))
-        for part, piece, _ in lin["parts"]:
+        for part, piece, scaled, _ in lin["parts"]:
             q = self._point_terms(lin, part, piece, damping, frozen)
-            bt_d = np.sum(q["jl"] * (piece @ d_control)[:, :, None], axis=1) + np.sum(
-                (piece.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
+            bt_d = np.sum(q["jl"] * (scaled @ d_control)[:, :, None], axis=1) + np.sum(
+                (scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
             d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
         return d_control, d_log_w, d_uv
 
 
 def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
                    control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                   log_bounds, iterations: int = 12, tolerance: float = 1e-6):
-    """Refined (control, weights, uv) and the rounds taken, started from the given ones."""
-    problem = JointProblem(layout, solver, points, inner_u, inner_v)
+                   log_bounds, iterations: int = 12, tolerance: float = 1e-6,
+                   point_weights: np.ndarray | None = None):
+    """Refined (control, weights, uv) and the rounds taken, started from the given ones;
+    ``point_weights`` (N,), all positive, weigh the points' squared distances."""
+    problem = JointProblem(layout, solver, points, inner_u, inner_v, point_weights)
     log_w = np.clip(np.log(weights), *log_bounds)
     uv = keep_in_domain(uv, layout.closed)
     ev = problem.evaluate(control, np.exp(log_w), uv)

@@ -6,12 +6,16 @@ few tens of thousands of points determine to well below the noise (a least-squar
 fit from n points is off by about sigma sqrt(unknowns / n)). So a cloud of more than
 ``SUBSAMPLE_POINTS`` points is fitted on a random subsample of that size (holding the
 swarm's points), and the result is finished on every point (:func:`finished`): every
-point's foot point on it (a global search, as the metrics take it), the gross outliers
-of that fit left out, and up to ``FINAL_ROUNDS`` rounds of parameter correction on all
-the others with the subsample's knots, weights and smoothing. The result is the fit
+point's foot point on it (a global search, as the metrics take it), with ``robust`` its
+weight by the robust loss on that fit (judged with the local test's neighbourhoods of the
+whole cloud; the subsample's own fit weighs its points by the plain scale), and up to
+``FINAL_ROUNDS`` rounds of parameter correction on the points kept, with the subsample's
+knots, weights and smoothing. The result is the fit
 of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted as before.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,8 +24,9 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .organise import RESOLUTION
+from .outliers import Neighbourhoods
 from .polish import polish
-from .robust import inliers
+from .robust import biweights
 from .solve import RegularisedLeastSquares
 
 SUBSAMPLE_POINTS = 20_000  # a bigger cloud is fitted on this many of its points, then finished on all
@@ -52,22 +57,31 @@ def free_state(layout: NetLayout, surface: NurbsSurface) -> tuple[np.ndarray, np
     return weights, inner[0], inner[1]
 
 
-def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoothing: float, robust: bool,
-             realign: bool) -> tuple[NurbsSurface, np.ndarray, int]:
-    """The subsample's surface finished on every point: (surface, inlier mask, rounds).
+class Finished(NamedTuple):
+    surface: NurbsSurface  # the fit of every point
+    point_weights: np.ndarray | None  # (N,) the robust loss's weights on it (0: left out), None without ``robust``
+    rounds: int  # rounds of parameter correction on every point (0: kept as it was)
 
-    Every point's foot point on it (global search), its gross outliers left out (with
-    ``robust``), then up to ``FINAL_ROUNDS`` rounds of the polish on the others at the
-    surface's knots and weights, from those foot points as they are (``realign``: the
-    data's edges re-aligned every round, as for a refined surface). A surface exact on every point (to ``RESOLUTION``, a
-    shape the net represents) is kept as it is.
+
+def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoothing: float, robust: bool,
+             realign: bool, neighbourhoods: Neighbourhoods | None = None) -> Finished:
+    """The subsample's surface finished on every point.
+
+    Every point's foot point on it (global search), with ``robust`` its weight by the
+    robust loss on it (:func:`psonurbs.fitting.robust.biweights`, with the whole cloud's
+    ``neighbourhoods``; weight 0 is left out), then up to ``FINAL_ROUNDS`` rounds of the
+    polish on the points kept, so weighted, at the surface's knots and weights, from those
+    foot points as they are (``realign``: the data's edges re-aligned every round, as for
+    a refined surface). A surface exact on every point (to ``RESOLUTION``, a shape the net
+    represents) is kept as it is.
     """
     uv, dist = closest_parameters(surface, points)
-    keep = inliers(dist) if robust else np.ones(len(points), bool)
+    point_weights = biweights(dist, neighbourhoods) if robust else None
+    keep = np.ones(len(points), bool) if point_weights is None else point_weights > 0
     if np.sqrt(np.mean(dist[keep] ** 2)) <= RESOLUTION:
-        return surface, keep, 0
+        return Finished(surface, point_weights, 0)
     solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
     weights, inner_u, inner_v = free_state(layout, surface)
     result = polish(layout, solver, points[keep], uv[keep], weights, inner_u, inner_v, FINAL_ROUNDS,
-                    realign=realign, align=False)
-    return result.surface, keep, result.rounds + 1
+                    realign=realign, align=False, point_weights=None if point_weights is None else point_weights[keep])
+    return Finished(result.surface, point_weights, result.rounds + 1)

@@ -49,6 +49,10 @@ class Rows:
         """The rows at ``index`` (a mask or indices)."""
         return Rows(self.values[index], self.columns[index], self.n_columns, self.cells[index])
 
+    def scaled(self, factors: np.ndarray) -> "Rows":
+        """Every row times its factor (N,): ``diag(factors) R``."""
+        return Rows(self.values * factors[:, None], self.columns, self.n_columns, self.cells)
+
     def rational(self, weights: np.ndarray) -> "Rows":
         """Rows of the rational basis: ``w_c B_c / sum_c w_c B_c`` (weights per column)."""
         wb = self.values * weights[self.columns]

@@ -33,6 +33,7 @@ from psonurbs.formats.clouds import Cloud, load_cloud
 
 from .cluster import Scheduler
 from .gate import Gate
+from .heap import keep_freed_memory
 from .inputs import Job
 from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, SUSPECT, Row, printable, worker_lost_row
 from .workers import pool_run
@@ -269,6 +270,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
                         lambda outcome: _finish(outcome, out_dir, gate))
         return rows  # type: ignore[return-value]
     if workers <= 1 or len(todo) <= 1:
+        keep_freed_memory()  # this process fits
         for k in range(len(jobs)):
             if k in pending_reports:
                 done(k, pending_reports[k])
