@@ -103,6 +103,7 @@ def dense_damped_step(problem: refine.JointProblem, control, weights, uv, dampin
         jac[k::3, 4 * n::2][np.arange(n_pts), np.arange(n_pts)] = su[:, k]
         jac[k::3, 4 * n + 1::2][np.arange(n_pts), np.arange(n_pts)] = sv[:, k]
     jac[:, 4 * n:][:, frozen.ravel()] = 0.0
+    jac *= np.repeat(problem.root, 3)[:, None]  # the weighted problem: every row times sqrt(c_i)
     res = ev["residual"].ravel()
     a = jac.T @ jac
     a[:3 * n, :3 * n] += np.kron(ev["regulariser"], np.eye(3))
@@ -119,9 +120,13 @@ def dense_damped_step(problem: refine.JointProblem, control, weights, uv, dampin
     return step[:3 * n].reshape(n, 3), step[3 * n:4 * n], step[4 * n:].reshape(n_pts, 2)
 
 
+@pytest.mark.parametrize("weighted", [False, True])
 @pytest.mark.parametrize("layout", [NetLayout((5, 4), (3, 2)), NetLayout((5, 5), (2, 2), (True, False), poles=True)])
-def test_refinement_step_is_the_dense_damped_gauss_newton_step_in_any_chunks(layout, monkeypatch):
+def test_refinement_step_is_the_dense_damped_gauss_newton_step_in_any_chunks(layout, weighted, monkeypatch):
+    """With and without the robust loss's point weights c_i (the dense Jacobian's rows
+    and the residuals times sqrt(c_i))."""
     rng = np.random.default_rng(5)
+    point_weights = rng.uniform(0.05, 1.0, 60) if weighted else None
     uv = skewed_parameters(60, 6)
     points = np.c_[uv, 0.2 * np.sin(3 * uv[:, 0])] + 0.01 * rng.normal(size=(60, 3))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3, layout.constraint_operator())
@@ -133,7 +138,7 @@ def test_refinement_step_is_the_dense_damped_gauss_newton_step_in_any_chunks(lay
         monkeypatch.setattr(refine, "REFINE_CHUNK", chunk)
         monkeypatch.setattr(rows, "ROW_CHUNK", row_chunk)
         monkeypatch.setattr(rows, "BLOCK_HEIGHT", height)
-        problem = refine.JointProblem(layout, solver, points, None, None)
+        problem = refine.JointProblem(layout, solver, points, None, None, point_weights)
         lin = problem.linearise(control, weights, uv, problem.evaluate(control, weights, uv))
         for damping, mask in ((1e-3, None), (0.3, frozen)):
             got = problem.step(lin, damping, mask)
