@@ -157,6 +157,8 @@ class FitConfig:
     remove_outliers: drop statistical outliers (by neighbour distances) before fitting.
     robust: leave out of the fit the points more than 10 robust standard deviations off
         it (gross outliers, :mod:`psonurbs.fitting.robust`); the metrics still count them.
+    trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.footprint`):
+        "auto" where the footprint leaves part of the domain empty, true always, false never.
     """
 
     orders: tuple[int, int] = (3, 3)
@@ -174,6 +176,7 @@ class FitConfig:
     refine: bool = True
     remove_outliers: bool = False
     robust: bool = True
+    trim: str | bool = "auto"
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -224,6 +227,8 @@ class FitConfig:
         for name in ("cross_validation", "refine", "remove_outliers", "robust"):
             if not isinstance(getattr(self, name), bool):
                 raise _fail(name, "true or false", getattr(self, name))
+        if not (isinstance(self.trim, bool) or self.trim == "auto"):
+            raise _fail("trim", "auto, true or false", self.trim)
 
     @property
     def degrees(self) -> tuple[int, int]:

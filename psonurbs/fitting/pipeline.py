@@ -25,7 +25,9 @@ from threadpoolctl import threadpool_limits
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.trim import Trim, distances_to_face
 
+from .footprint import footprint, footprint_notes
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .paper import FullSearch
@@ -49,6 +51,7 @@ class FitResult:
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
+    trim: Trim | None = None  # the face's loops in the surface's parameter domain (None: untrimmed)
 
 
 def rms(distances: np.ndarray) -> float:
@@ -213,7 +216,12 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         run = run_full if config.strategy == "full" else run_hybrid
         surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
-        _, dist = closest_parameters(surface, cloud.frame.to_local(points))
+        local = cloud.frame.to_local(points)
+        uv, dist = closest_parameters(surface, local)
+        face = footprint(surface, uv, dist, config.trim if topology == "open" else False)
+        if face.trim is not None:
+            dist = distances_to_face(surface, face.trim, local, uv, dist)
+        info["trim"] = face.to_dict()
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
                          surface.closed_u, surface.closed_v)
@@ -251,4 +259,6 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"topology auto: {topology} (" + ", ".join(
             f"{name} {s['classical_error_relative']:.2e}" if "rejected" not in s else f"{name} rejected: {s['rejected']}"
             for name, s in scores.items()) + ")")
-    return FitResult(world, topology, metrics, curve, info, notes)
+    notes += footprint_notes(face, len(points))
+    metrics["outside_trim"] = int(face.points_outside)
+    return FitResult(world, topology, metrics, curve, info, notes, trim=face.trim)

@@ -36,6 +36,7 @@ import numpy as np
 
 from psonurbs.errors import ConfigError
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.trim import Trim
 
 __all__ = [
     "FORMATS",
@@ -262,7 +263,7 @@ def render_iges(surface: NurbsSurface, name: str = "surface") -> str:
 # ---- all of them ---------------------------------------------------------------
 
 def render_exports(surface: NurbsSurface, formats: Iterable[str], name: str,
-                   mesh_vertices: int) -> tuple[str, dict[str, bytes | str]]:
+                   mesh_vertices: int, trim: Trim | None = None) -> tuple[str, dict[str, bytes | str]]:
     """Render the requested formats.
 
     Returns ``(obj_block, files)``: the text to append to ``STEM.obj`` (empty unless

@@ -68,7 +68,10 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
         result = fit(points, job.config, on_iteration=on_iteration)
+        trim = getattr(result, "trim", None)
         surface = result.surface.to_dict()
+        if trim is not None:
+            surface["trim"] = trim.to_list()
         document = {
             "psonurbs_version": psonurbs.__version__,
             "cloud": path.name,
@@ -79,13 +82,15 @@ def fit_job(job: Job, formats: Sequence[str] = (),
             "notes": list(result.notes),
             "config": job.config.to_dict(),
         }
-        vertices, triangles = result.surface.tessellate(*job.config.tessellation)
+        vertices, triangles = _mesh(result.surface, trim, job.config.tessellation)
         obj_extra, extra_files = ("", {})
         if formats:
             from psonurbs.geometry.nurbs import NurbsSurface
+            from psonurbs.geometry.trim import Trim
 
-            exact = NurbsSurface.from_dict(surface)
-            obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices))
+            exact = NurbsSurface.from_dict(surface)  # what the JSON says, to the last digit
+            obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices),
+                                                    Trim.from_list(surface.get("trim")))
         metrics = result.metrics
         row.topology = result.topology
         row.net = "x".join(str(n) for n in job.config.net_size)  # distinct control points
@@ -111,6 +116,16 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         row.detail = traceback.format_exc()
     row.seconds = time.perf_counter() - start
     return FitOutcome(row, path.stem)
+
+
+def _mesh(surface, trim, tessellation: tuple[int, int]):
+    """The surface's triangle mesh (vertices, triangles), clipped to the trim if any."""
+    if trim is None:
+        return surface.tessellate(*tessellation)
+    from psonurbs.geometry.trim import trimmed_mesh
+
+    vertices, triangles, _ = trimmed_mesh(surface, trim, *tessellation)
+    return vertices, triangles
 
 
 def _number(x) -> float | None:
