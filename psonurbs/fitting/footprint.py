@@ -35,25 +35,40 @@ from scipy.spatial import Delaunay, cKDTree
 
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
-from psonurbs.geometry.trim import Trim, TrimLoop, crossing, fit_closed_curve, inside, polygon_loop, signed_area
+from psonurbs.geometry.trim import (
+    Trim,
+    TrimLoop,
+    crossing,
+    distances_to_face,
+    fit_closed_curve,
+    inside,
+    polygon_loop,
+    signed_area,
+)
 
 from .robust import inliers
 
 NEIGHBOURS = 16
 ALPHA = 2.5
-MARGIN = 1.0  # loops this many median spacings outside the points
+MARGIN = 0.25  # loops this many median spacings outside the points
 EMPTY_SHARE = 0.01  # auto: trim when the face leaves this share of the area empty
+# a loop along the domain's edge runs this far outside it (of the unit domain): on the edge
+# itself an even-odd test is undecided, and the data's points held on the edge must be inside
+EDGE_OUTSET = 1e-9
 MAX_RASTER = 1500  # cells along the longer side of the footprint's raster
 AREA_GRID = 201  # surface area elements for the empty share
 
 
 @dataclass(frozen=True)
 class Footprint:
-    """The result: the trim (None when the surface stays whole) and what was found."""
+    """The result: the surface, its trim (None: untrimmed), the points' distances to the
+    face, and what was found."""
 
+    surface: NurbsSurface
     trim: Trim | None
+    distances: np.ndarray  # (N,) of the points to the (trimmed) surface
     loops: int
-    empty_share: float  # share of the surface area outside the face
+    empty_share: float  # share of the fitted surface's area outside the face
     points_outside: int  # points whose parameters lie outside the face
     fragments: int  # pieces of the footprint left out of the face
     fragment_points: int
@@ -139,53 +154,80 @@ def rasterised(triangles: np.ndarray, x0: float, y0: float, cell: float, shape: 
     return mask
 
 
-def footprint(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray, mode: str | bool) -> Footprint:
-    """The trim of an open surface from its points' parameters uv (N, 2) and distances (N,)."""
-    if mode is False or len(uv) < 4:
-        return Footprint(None, 0, 0.0, 0, 0, 0, 0.0)
-    (u0, u1), (v0, v1) = surface.domain_u, surface.domain_v
+@dataclass(frozen=True)
+class Contours:
+    """The face's contours in the parameter domain, before they are fitted."""
+
+    polygons: list[np.ndarray]  # the outer boundary (counter-clockwise) first, then the holes
+    face_points: np.ndarray  # indices of the points (into uv) on the face's piece
+    fragments: int
+    fragment_points: int
+    spacing: float  # median spacing, surface length units
+    tolerance: np.ndarray  # (2,) half the margin, in u and v
+
+    def reach(self) -> np.ndarray:
+        """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
+        p = np.concatenate(self.polygons)
+        return np.maximum(np.concatenate([-p.min(axis=0), p.max(axis=0) - 1.0]), 0.0)
+
+
+def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) -> Contours | None:
+    """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
-    good = inliers(distances)
+    good = np.flatnonzero(inliers(distances))
     x = uv[good] * scale
     spacing = local_spacing(x)
     tri, kept = alpha_triangles(x, spacing)
-    label = pieces(tri, kept)
     if not kept.any():
-        return Footprint(None, 0, 0.0, 0, 0, 0, float(np.median(spacing)))
+        return None
+    label = pieces(tri, kept)
     a, b, c = (tri.points[tri.simplices[:, k]] for k in range(3))
     area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
     piece_area = np.bincount(label[kept], weights=area[kept])
-    face = int(np.argmax(piece_area))
-    in_face = label == face
+    in_face = label == int(np.argmax(piece_area))
     face_points = np.unique(tri.simplices[in_face])
     others = np.setdiff1d(np.unique(tri.simplices[kept & ~in_face]), face_points)
 
     # raster of the face, its distance field, contoured one margin outside it
     margin = MARGIN * float(np.median(spacing))
-    lo, hi = np.array([u0, v0]) * scale, np.array([u1, v1]) * scale
+    lo, hi = x.min(axis=0), x.max(axis=0)
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
     pad = margin + 3.0 * cell
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
-    gx = np.empty((len(xs), len(ys)))
-    mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, gx.shape)
+    mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
-    polygons = [p for p in polygons if abs(signed_area(p)) > 0]
+    polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     outer = int(np.argmax([signed_area(p) for p in polygons]))
     holes = [p for k, p in enumerate(polygons) if k != outer and signed_area(p) < 0]
-    polygons = [polygons[outer], *holes]
-    must_inside = uv[good][face_points]
-    loops = fitted_loops(polygons, margin / 2.0 / scale, ((u0, u1), (v0, v1)), must_inside)
+    return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale)
+
+
+def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
+              mode: str | bool) -> Footprint:
+    """The trim of an open fit from its points (N, 3), their foot-point parameters uv
+    (N, 2) and distances (N,), and the points' distances to the trimmed surface."""
+    whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    if mode is False or len(uv) < 4:
+        return whole
+    found = face_contours(surface, uv, distances)
+    if found is None:
+        return whole
+    lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
+    loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
     trim = Trim(tuple(loops))
     empty = empty_share(surface, trim)
     if mode == "auto" and empty < EMPTY_SHARE and len(loops) == 1:
-        trim = None
-    outside = 0 if trim is None else int(np.sum(~trim.contains(uv)))
-    return Footprint(trim, 0 if trim is None else len(loops), empty, outside,
-                     int(np.sum(piece_area > 0) - 1), int(len(others)), float(np.median(spacing)))
+        return Footprint(surface, None, whole.distances, 0, empty, 0, found.fragments, found.fragment_points,
+                         found.spacing)
+    outside = ~trim.contains(uv)
+    dist = distances_to_face(surface, trim, points, uv, distances)
+    return Footprint(surface, trim, dist, len(loops), empty, int(outside.sum()), found.fragments,
+                     found.fragment_points, found.spacing)
 
 
 def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray
@@ -198,9 +240,7 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
     themselves, degree 1)."""
     lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
     clamped = [np.clip(p, lo, hi) for p in polygons]
-    # a point on the domain's edge is on a loop running along it: test it a hair inside
-    nudge = 1e-9 * (hi - lo)
-    probe = np.clip(must_inside, lo + nudge, hi - nudge)
+    probe = np.asarray(must_inside, float)
 
     def close_enough(loop: TrimLoop, polygon: np.ndarray) -> bool:
         """Whether the loop keeps within the tolerance of its contour (where it would add

@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
-from psonurbs.geometry.trim import Trim, distances_to_face
+from psonurbs.geometry.trim import Trim
 
 from .footprint import footprint, footprint_notes
 from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
@@ -218,9 +218,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
         local = cloud.frame.to_local(points)
         uv, dist = closest_parameters(surface, local)
-        face = footprint(surface, uv, dist, config.trim if topology == "open" else False)
-        if face.trim is not None:
-            dist = distances_to_face(surface, face.trim, local, uv, dist)
+        face = footprint(surface, local, uv, dist, config.trim if topology == "open" else False)
+        surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
