@@ -51,6 +51,7 @@ from .robust import inliers
 NEIGHBOURS = 16
 ALPHA = 2.5
 MARGIN = 0.25  # loops this many median spacings outside the points
+MAX_CONTROL = 128  # control points of a cubic loop at most
 EMPTY_SHARE = 0.01  # auto: trim when the face leaves this share of the area empty
 # a loop along the domain's edge runs this far outside it (of the unit domain): on the edge
 # itself an even-odd test is undecided, and the data's points held on the edge must be inside
@@ -232,12 +233,15 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
 
 def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray
                  ) -> list[TrimLoop]:
-    """Closed cubic B-splines for the contours (outer first): per loop the fewest control
-    points, doubling from 8, within ``tolerance`` (per direction, (2,)) of its contour
-    (clamped to the domain); then together: simple, apart, and holding ``must_inside``
-    (else twice the control points for the loops nearest a point left out, or for all if
-    two cross, at most half the contour's vertices; finally the simplified contours
-    themselves, degree 1)."""
+    """Closed B-splines for the contours (outer first).
+
+    Each loop is first a cubic with the fewest control points, doubling from 8 up to
+    ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour. Then,
+    together, the loops must be simple, apart, and hold ``must_inside``: a loop nearest
+    a point left out gets twice the control points, and one already at the cap becomes
+    its contour itself, simplified within the tolerance (degree 1: it follows the
+    contour, which lies a margin outside the points); if two loops cross, all do.
+    """
     lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
     clamped = [np.clip(p, lo, hi) for p in polygons]
     probe = np.asarray(must_inside, float)
@@ -248,32 +252,43 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
         dense = np.concatenate([polygon, 0.5 * (polygon + np.roll(polygon, -1, axis=0))]) / tolerance
         return bool(cKDTree(dense).query(loop.polygon(4 * len(polygon)) / tolerance)[0].max() <= 1.0)
 
-    def fit(k: int, n: int) -> TrimLoop:
+    def cubic(k: int, n: int) -> TrimLoop:
         return fit_closed_curve(polygons[k], n, 3, bounds=bounds, snap=tuple(2.0 * tolerance))
 
+    def polyline(k: int) -> TrimLoop:
+        return polygon_loop(simplify_closed(clamped[k], float(tolerance.min())))
+
+    cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
     counts, loops = [], []
     for k, p in enumerate(clamped):
-        n = 8
-        while not close_enough(loop := fit(k, n), p) and 2 * n <= len(p) // 2:
+        n, loop = 8, cubic(k, 8)
+        close = close_enough(loop, p)
+        while not close and 2 * n <= cap[k]:
             n *= 2
+            loop = cubic(k, n)
+            close = close_enough(loop, p)
         counts.append(n)
-        loops.append(loop)
+        loops.append(loop if close else polyline(k))
     while True:
         sampled = [loop.polygon() for loop in loops]
         if crossing(sampled):
+            if all(loop.degree == 1 for loop in loops):
+                return loops
             blamed = set(range(len(loops)))
         else:
             missed = probe[~inside(sampled, probe)]
-            if len(missed) == 0:
+            if len(missed) == 0 or all(loops[k].degree == 1 for k in range(len(loops))):
                 return loops
             nearest = [cKDTree(p).query(missed)[0] for p in sampled]
             blamed = set(np.argmin(nearest, axis=0).tolist())
-        grown = [min(2 * n, len(p) // 2) if k in blamed else n for k, (n, p) in enumerate(zip(counts, clamped))]
-        if grown == counts:
-            break
-        loops = [fit(k, n) if n != counts[k] else loops[k] for k, n in enumerate(grown)]
-        counts = grown
-    return [polygon_loop(simplify_closed(p, float(tolerance.min()))) for p in clamped]
+        for k in blamed:
+            if loops[k].degree == 1:
+                continue
+            if 2 * counts[k] <= cap[k]:
+                counts[k] *= 2
+                loops[k] = cubic(k, counts[k])
+            else:
+                loops[k] = polyline(k)
 
 
 def empty_share(surface: NurbsSurface, trim: Trim, n: int = AREA_GRID) -> float:

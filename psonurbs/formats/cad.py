@@ -38,6 +38,8 @@ from psonurbs.errors import ConfigError
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
 
+from .step import render_step, step_available
+
 __all__ = [
     "FORMATS",
     "SUFFIXES",
@@ -49,8 +51,8 @@ __all__ = [
 ]
 
 #: ``--format`` values, and the file each writes (``None``: a block in ``STEM.obj``).
-FORMATS = ("3dm", "iges", "obj-nurbs")
-SUFFIXES = {"3dm": ".3dm", "iges": ".igs", "obj-nurbs": None}
+FORMATS = ("3dm", "iges", "obj-nurbs", "step")
+SUFFIXES = {"3dm": ".3dm", "iges": ".igs", "obj-nurbs": None, "step": ".step"}
 
 _INSTALL_HINT = "pip install 'psonurbs[cad]'"
 
@@ -58,8 +60,9 @@ _INSTALL_HINT = "pip install 'psonurbs[cad]'"
 def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
     """Validate and de-duplicate ``formats`` (keeping their order).
 
-    Raises :class:`ConfigError` for an unknown format, or for ``3dm`` when the optional
-    ``rhino3dm`` package is not installed, so that a run stops before any fitting.
+    Raises :class:`ConfigError` for an unknown format, or for ``3dm`` or ``step`` when the
+    optional ``rhino3dm`` or ``cadquery-ocp`` package is not installed, so that a run stops
+    before any fitting.
     """
     out: list[str] = []
     for fmt in formats:
@@ -73,6 +76,9 @@ def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
         except ImportError:
             raise ConfigError("--format 3dm needs the optional package rhino3dm, which is not "
                               f"installed: {_INSTALL_HINT}") from None
+    if "step" in out and not step_available():
+        raise ConfigError("--format step needs the optional package cadquery-ocp (OpenCASCADE), which is "
+                          f"not installed: {_INSTALL_HINT}")
     return tuple(out)
 
 
@@ -277,6 +283,8 @@ def render_exports(surface: NurbsSurface, formats: Iterable[str], name: str,
             files[".igs"] = render_iges(surface, name)
         elif fmt == "3dm":
             files[".3dm"] = render_3dm(surface, name)
+        elif fmt == "step":
+            files[".step"] = render_step(surface, trim, name)
         else:
             raise ConfigError(f"unknown export format {fmt!r}")
     return obj_block, files
