@@ -20,8 +20,10 @@ From the points' final parameters (their foot points on the fitted surface):
    that keeps within half the margin of it, inside the domain, every loop simple
    and apart from the others, and the piece's points inside the face.
 
-``trim: auto`` keeps the loops only when the face leaves at least ``EMPTY_SHARE`` of the
-surface's area empty or has a hole; ``true`` always; ``false`` never.
+``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
+domain: an empty disc of radius at least ``ALPHA`` median spacings (as wide as the gaps the
+alpha shape opens; a cloud that fills its rectangle leaves only sampling gaps along the
+edges); ``true`` always; ``false`` never.
 """
 from __future__ import annotations
 
@@ -52,7 +54,6 @@ NEIGHBOURS = 16
 ALPHA = 2.5
 MARGIN = 0.25  # loops this many median spacings outside the points
 MAX_CONTROL = 128  # control points of a cubic loop at most
-EMPTY_SHARE = 0.01  # auto: trim when the face leaves this share of the area empty
 # a loop along the domain's edge runs this far outside it (of the unit domain): on the edge
 # itself an even-odd test is undecided, and the data's points held on the edge must be inside
 EDGE_OUTSET = 1e-9
@@ -165,6 +166,7 @@ class Contours:
     fragment_points: int
     spacing: float  # median spacing, surface length units
     tolerance: np.ndarray  # (2,) half the margin, in u and v
+    empty_radius: float  # radius of the widest empty disc in the domain outside the face
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
@@ -191,7 +193,7 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
 
     # raster of the face, its distance field, contoured one margin outside it
     margin = MARGIN * float(np.median(spacing))
-    lo, hi = x.min(axis=0), x.max(axis=0)
+    lo, hi = np.minimum(x.min(axis=0), 0.0), np.maximum(x.max(axis=0), scale)  # the domain is [0, 1]^2
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
     pad = margin + 3.0 * cell
@@ -200,12 +202,16 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
+    # the widest empty disc in the domain outside the face: a real gap, or sampling?
+    in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
+    empty = in_domain & (field > margin)
+    gap = float(ndimage.distance_transform_edt(empty).max()) * cell if empty.any() else 0.0
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     outer = int(np.argmax([signed_area(p) for p in polygons]))
     holes = [p for k, p in enumerate(polygons) if k != outer and signed_area(p) < 0]
     return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
-                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale)
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
@@ -218,13 +224,13 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     found = face_contours(surface, uv, distances)
     if found is None:
         return whole
+    if mode == "auto" and found.empty_radius < ALPHA * found.spacing and len(found.polygons) == 1:
+        return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
+                         found.spacing)
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
     loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
     trim = Trim(tuple(loops))
     empty = empty_share(surface, trim)
-    if mode == "auto" and empty < EMPTY_SHARE and len(loops) == 1:
-        return Footprint(surface, None, whole.distances, 0, empty, 0, found.fragments, found.fragment_points,
-                         found.spacing)
     outside = ~trim.contains(uv)
     dist = distances_to_face(surface, trim, points, uv, distances)
     return Footprint(surface, trim, dist, len(loops), empty, int(outside.sum()), found.fragments,
