@@ -261,8 +261,8 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
     def cubic(k: int, n: int) -> TrimLoop:
         return fit_closed_curve(polygons[k], n, 3, bounds=bounds, snap=tuple(2.0 * tolerance))
 
-    def polyline(k: int) -> TrimLoop:
-        return polygon_loop(simplify_closed(clamped[k], float(tolerance.min())))
+    def polyline(k: int, exact: bool = False) -> TrimLoop:
+        return polygon_loop(clamped[k] if exact else simplify_closed(clamped[k], float(tolerance.min())))
 
     cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
     counts, loops = [], []
@@ -283,18 +283,25 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
             blamed = set(range(len(loops)))
         else:
             missed = probe[~inside(sampled, probe)]
-            if len(missed) == 0 or all(loops[k].degree == 1 for k in range(len(loops))):
+            if len(missed) == 0:
                 return loops
             nearest = [cKDTree(p).query(missed)[0] for p in sampled]
             blamed = set(np.argmin(nearest, axis=0).tolist())
+        changed = False
         for k in blamed:
             if loops[k].degree == 1:
+                if len(loops[k].control_points) <= len(clamped[k]):  # simplified: the contour itself
+                    loops[k] = polyline(k, exact=True)
+                    changed = True
                 continue
+            changed = True
             if 2 * counts[k] <= cap[k]:
                 counts[k] *= 2
                 loops[k] = cubic(k, counts[k])
             else:
                 loops[k] = polyline(k)
+        if not changed:  # the points left out are nearest polylines: they lie off the face (strays)
+            return loops
 
 
 def empty_share(surface: NurbsSurface, trim: Trim, n: int = AREA_GRID) -> float:

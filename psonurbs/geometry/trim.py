@@ -54,8 +54,12 @@ class TrimLoop:
         return BSpline(self.knots, self.control_points, self.degree)(np.asarray(t, float))
 
     def polygon(self, samples: int = LOOP_SAMPLES) -> np.ndarray:
-        """The loop sampled at ``samples`` equal parameter steps, (samples, 2), the end not repeated."""
-        t = np.linspace(self.knots[self.degree], self.knots[-self.degree - 1], samples + 1)[:-1]
+        """The loop sampled at ``samples`` equal parameter steps, (M, 2), the end not repeated; a
+        degree-1 loop also at its knots (its corners), so that the polygon is the loop."""
+        t0, t1 = self.knots[self.degree], self.knots[-self.degree - 1]
+        t = np.linspace(t0, t1, samples + 1)[:-1]
+        if self.degree == 1:
+            t = np.union1d(t, self.knots[(self.knots > t0) & (self.knots < t1)])
         return self.evaluate(t)
 
     def to_dict(self) -> dict:
@@ -224,8 +228,9 @@ def fit_closed_curve(polygon: np.ndarray, n: int, degree: int = 3, smoothing: fl
 def polygon_loop(polygon: np.ndarray) -> TrimLoop:
     """The closed polygon (M, 2) itself as a degree-1 loop: knots at its chord lengths."""
     p = np.asarray(polygon, float)
+    p = p[np.any(p != np.roll(p, -1, axis=0), axis=1)]  # no repeated vertex (a zero-length edge)
     seg = np.hypot(*(np.roll(p, -1, axis=0) - p).T)
-    t = np.concatenate([[0.0], np.cumsum(seg)]) / float(seg.sum())
+    t = np.minimum(np.concatenate([[0.0], np.cumsum(seg)]) / float(seg.sum()), 1.0)
     knots = np.concatenate([[0.0], t[:-1], [1.0, 1.0]])
     return TrimLoop(1, knots, np.concatenate([p, p[:1]]))
 
