@@ -147,8 +147,20 @@ def render_obj_nurbs(surface: NurbsSurface, first_vertex: int, name: str = "surf
 
 # ---- Rhino 3DM -----------------------------------------------------------------
 
-def render_3dm(surface: NurbsSurface, name: str = "surface") -> bytes:
-    """A Rhino 3DM file holding the surface as one named object (needs ``rhino3dm``).
+#: rhino3dm's Python API builds Breps only from whole surfaces and primitives (no loops or
+#: trims can be added, nor a surface trimmed by curves), so a trim travels as curves.
+TRIM_3DM_NOTE = ("3dm: rhino3dm cannot build a trimmed Brep, so STEM.3dm holds the untrimmed surface and "
+                 "its trim loops as curves lying on it (Rhino: Split or Trim with them); STEP and IGES "
+                 "carry the trimmed face")
+
+LOOP_CURVE_SAMPLES = 2000
+
+
+def render_3dm(surface: NurbsSurface, name: str = "surface", trim: Trim | None = None) -> bytes:
+    """A Rhino 3DM file holding the surface as one named object (needs ``rhino3dm``); with a
+    trim, also each loop's image on the surface, S(C(t)), as a polyline curve through
+    ``LOOP_CURVE_SAMPLES`` of its points (named ``NAME trim 1`` for the outer boundary,
+    then the holes): see :data:`TRIM_3DM_NOTE`.
 
     openNURBS stamps the file with its creation time and object ids, so two exports of
     the same surface are equal as geometry but not byte for byte.
@@ -178,6 +190,13 @@ def render_3dm(surface: NurbsSurface, name: str = "surface") -> bytes:
     attributes = rhino3dm.ObjectAttributes()
     attributes.Name = name
     model.Objects.AddSurface(srf, attributes)
+    for k, loop in enumerate(trim.loops if trim is not None else (), 1):
+        uv = loop.polygon(LOOP_CURVE_SAMPLES)
+        xyz = surface.evaluate(uv[:, 0], uv[:, 1])
+        points = [rhino3dm.Point3d(*(float(c) for c in p)) for p in np.concatenate([xyz, xyz[:1]])]
+        curve_attributes = rhino3dm.ObjectAttributes()
+        curve_attributes.Name = f"{name} trim {k} ({'outer boundary' if k == 1 else 'hole'})"
+        model.Objects.AddCurve(rhino3dm.PolylineCurve(points), curve_attributes)
     return base64.b64decode(model.Encode())
 
 
@@ -335,7 +354,7 @@ def render_exports(surface: NurbsSurface, formats: Iterable[str], name: str,
         elif fmt == "iges":
             files[".igs"] = render_iges(surface, name, trim)
         elif fmt == "3dm":
-            files[".3dm"] = render_3dm(surface, name)
+            files[".3dm"] = render_3dm(surface, name, trim)
         elif fmt == "step":
             files[".step"] = render_step(surface, trim, name)
         else:

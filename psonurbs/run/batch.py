@@ -99,6 +99,11 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         row.rmse_relative = _number(metrics.get("rmse_relative"))
         row.max_error_relative = _number(metrics.get("max_error_relative"))
         row.notes = list(result.notes)
+        if trim is not None and "3dm" in formats:
+            from psonurbs.formats.cad import TRIM_3DM_NOTE
+
+            row.notes.append(TRIM_3DM_NOTE.replace("STEM", path.stem))
+            document["notes"].append(row.notes[-1])
         outputs = dict(document=document, vertices=vertices, triangles=triangles,
                        curve_header=list(result.curve_header), curve_rows=result.curve,
                        obj_extra=obj_extra, extra_files=extra_files)
