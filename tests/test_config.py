@@ -197,3 +197,15 @@ def test_not_utf8(tmp_path):
     path.write_bytes(b"orders: [3, 3]\n\xff\xfe\n")
     with pytest.raises(ConfigError, match=r"cfg\.yaml: config file is not UTF-8 text"):
         load_config(path)
+
+
+def test_trim_key_accepts_auto_true_false_only():
+    from psonurbs.config import FitConfig, config_from_dict
+    from psonurbs.errors import ConfigError
+
+    assert FitConfig().trim == "auto"
+    assert config_from_dict({"trim": True}).trim is True
+    assert config_from_dict({"trim": False}).trim is False
+    for bad in ("yes", 1, None):
+        with pytest.raises(ConfigError, match="'trim': expected auto, true or false"):
+            config_from_dict({"trim": bad})
