@@ -243,8 +243,8 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
 
     Each loop is first a cubic with the fewest control points, doubling from 8 up to
     ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour. Then,
-    together, the loops must be simple, apart, and hold ``must_inside``: a loop nearest
-    a point left out gets twice the control points, and one already at the cap becomes
+    together, the loops must be simple, apart, and hold ``must_inside`` (or pass within
+    the tolerance of them): a loop nearest a point left out gets twice the control points, and one already at the cap becomes
     its contour itself, simplified within the tolerance (degree 1: it follows the
     contour, which lies a margin outside the points); if two loops cross, all do.
     """
@@ -282,11 +282,14 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
                 return loops
             blamed = set(range(len(loops)))
         else:
-            missed = probe[~inside(sampled, probe)]
-            if len(missed) == 0:
+            missed = probe[~inside(sampled, probe)] / tolerance
+            # a point within the tolerance of a loop is as good as on it (the loop is a
+            # margin outside the points, and only so precise)
+            nearest = [cKDTree(p / tolerance).query(missed)[0] for p in sampled] if len(missed) else []
+            if len(missed) == 0 or np.min(nearest, axis=0).max() <= 1.0:
                 return loops
-            nearest = [cKDTree(p).query(missed)[0] for p in sampled]
-            blamed = set(np.argmin(nearest, axis=0).tolist())
+            far = np.min(nearest, axis=0) > 1.0
+            blamed = set(np.argmin(np.asarray(nearest)[:, far], axis=0).tolist())
         changed = False
         for k in blamed:
             if loops[k].degree == 1:
