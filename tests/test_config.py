@@ -72,7 +72,8 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust"]
+                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust",
+                       "trim"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
