@@ -26,11 +26,11 @@ import time
 from pathlib import Path
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
-OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder", "franke_outliers"]
+OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder", "franke_outliers", "plate_holes"]
 CLOSED_CASES = ["seed_sphere169", "cylinder", "sphere_noisy", "torus"]
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
-COLUMNS = ["topology", "rmse", "truth_rms", "truth_max", "cover_max", "seam", "pole_spread", "mesh_vs_nurbs",
+COLUMNS = ["topology", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread", "mesh_vs_nurbs",
            "claim_err", "curve_ok"]
 
 
