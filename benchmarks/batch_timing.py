@@ -5,7 +5,7 @@
     python benchmarks/batch_timing.py --source /tmp/snapshot   # a checkout to time instead
 
 
-The clouds are the open benchmark cases of ``../shared/bench/cases.py`` (written to a
+The clouds are open benchmark cases of ``benchmarks/cases.py`` (written to a
 temporary directory), each copied ``--copies`` times (5 cases x 4 = 20 clouds). Both
 runs use the installed ``psonurbs`` command with the same small swarm; the script
 checks that every output except the summaries (which hold run times) is byte-identical
@@ -25,7 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
+from cases import CASES, write
+
 OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder"]
 
 
@@ -46,8 +47,9 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="psonurbs-batch-") as tmp:
         tmp = Path(tmp)
         cases = tmp / "cases"
-        subprocess.run([sys.executable, str(SHARED / "cases.py"), str(cases), "--only", *OPEN_CASES],
-                       check=True, capture_output=True)
+        cases.mkdir()
+        for case in OPEN_CASES:
+            write(CASES[case], cases)
         clouds = tmp / "clouds"
         clouds.mkdir()
         for case in OPEN_CASES:

@@ -3,10 +3,12 @@
 
     python benchmarks/run_cases.py                    # every case, swarm and classical
     python benchmarks/run_cases.py --cases franke_grid wave_graded --variants swarm
+    python benchmarks/run_cases.py --cases torus --seed 3   # a fresh draw of a case
 
-The cases and the scorer are ``../shared/bench/cases.py`` and ``score.py``. Each case
-is fitted with its own YAML by the installed ``psonurbs`` command, timed (wall clock,
-whole command), then scored; figures are relative to the cloud's bounding-box diagonal.
+The cases come from ``benchmarks/cases.py`` and the figures from ``benchmarks/score.py``
+(which re-evaluates the JSON with scipy, nothing of psonurbs). Each case is fitted with
+its own YAML by the installed ``psonurbs`` command, timed (wall clock, whole command),
+then scored; figures are relative to the cloud's bounding-box diagonal.
 
 Variants:
   swarm      the case's config as it is (strategy hybrid: knots and weights by the swarm)
@@ -25,9 +27,9 @@ import tempfile
 import time
 from pathlib import Path
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "bench"
-OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder", "franke_outliers", "plate_holes"]
-CLOSED_CASES = ["seed_sphere169", "cylinder", "sphere_noisy", "torus"]
+from cases import CASES, write
+from score import score
+
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
 COLUMNS = ["topology", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread", "mesh_vs_nurbs",
@@ -43,9 +45,7 @@ def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path) -> d
     seconds = time.perf_counter() - start
     if run.returncode != 0:
         return {"error": (run.stderr or run.stdout).strip().splitlines()[-1], "seconds": seconds}
-    score = subprocess.run([sys.executable, str(SHARED / "score.py"), str(cases_dir / f"{case}.ply"), str(out),
-                            "--gt", str(cases_dir / f"{case}.gt.npz")], capture_output=True, text=True)
-    result = json.loads(score.stdout.strip().splitlines()[-1])
+    result = score(cases_dir / f"{case}.ply", out, cases_dir / f"{case}.gt.npz")
     result["topology"] = json.loads((out / f"{case}.json").read_text())["topology"]
     seams = [result[k] for k in ("seam_u", "seam_v") if k in result]
     result["seam"] = max(seams) if seams else None
@@ -65,14 +65,17 @@ def cell(value) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="*", default=OPEN_CASES + CLOSED_CASES)
+    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), metavar="CASE",
+                    help="cases to run (default: all; see benchmarks/cases.py --list)")
+    ap.add_argument("--seed", type=int, default=0, help="cloud seed: 0 the public clouds, others fresh draws")
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"], choices=list(VARIANT_ARGS))
     ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
     args = ap.parse_args(argv)
     root = args.out or Path(tempfile.mkdtemp(prefix="psonurbs-bench-"))
     cases_dir = root / "cases"
-    subprocess.run([sys.executable, str(SHARED / "cases.py"), str(cases_dir), "--only", *args.cases],
-                   check=True, capture_output=True)
+    cases_dir.mkdir(parents=True, exist_ok=True)
+    for case in args.cases:
+        write(CASES[case], cases_dir, args.seed)
     header = ["case", "variant", *COLUMNS, "noise", "seconds"]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))

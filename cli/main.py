@@ -5,12 +5,14 @@ live here. Exit codes (also in ``psonurbs fit --help``):
 
     0    every cloud was fitted (and passed the gate)
     1    internal error (a bug in psonurbs)
-    2    unusable input or config
+    2    unusable input or config (usage errors too)
     3    a fit is above --max-rmse / --max-rmse-rel
+    4    a worker process died or was lost while fitting a cloud (killed, out of memory)
     130  interrupted (Ctrl-C)
     143  terminated (SIGTERM)
 
-When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3 > 0.
+When several apply, the most severe wins: 143 > 130 > 1 > 4 > 2 > 3 > 0. Every error is
+one line on stderr, ``psonurbs: error: ...`` (click's usage errors included).
 """
 from __future__ import annotations
 
@@ -27,7 +29,8 @@ import psonurbs
 from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
-from psonurbs.run.batch import run_batch
+from psonurbs.run.batch import preflight, run_batch
+from psonurbs.run.cluster import Scheduler, check_available
 from psonurbs.run.gate import Gate
 from psonurbs.run.inputs import Job, expand_inputs, jobs_from_inputs
 from psonurbs.run.summary import (
@@ -37,6 +40,7 @@ from psonurbs.run.summary import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_TERMINATED,
+    WORKER_LOST,
     Row,
     Terminated,
     exit_code,
@@ -44,9 +48,23 @@ from psonurbs.run.summary import (
     write_summary,
 )
 
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(32), 127]}
+_CONTROL.update({ord("\n"): "\\n", ord("\r"): "\\r", ord("\t"): "\\t"})
+
+
+def one_line(text: str) -> str:
+    """``text`` safe to print as one line: control characters (a newline in a file name)
+    escaped, and the undecodable bytes of a file name (surrogates) shown as ``\\xff``."""
+    text = text.translate(_CONTROL)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    return text
+
 
 def _error(message: str) -> None:
-    click.echo(f"psonurbs: error: {message}", err=True)
+    click.echo(f"psonurbs: error: {one_line(message)}", err=True)
 
 
 def _internal_error(error: BaseException | str, trace: str = "") -> None:
@@ -58,7 +76,7 @@ def _internal_error(error: BaseException | str, trace: str = "") -> None:
             traceback.print_exc()
     if isinstance(error, BaseException):
         error = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-    click.echo(f"psonurbs: internal error: {error}", err=True)
+    click.echo(f"psonurbs: internal error: {one_line(error)}", err=True)
     if not debug:
         click.echo("psonurbs: this is a bug; set PSONURBS_DEBUG=1 to see the traceback", err=True)
 
@@ -119,7 +137,30 @@ def jobs_option(help_text: str):
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Commands(click.Group):
+    """The command group, reporting click's own errors as the tool does its own: one line
+    ``psonurbs: error: ...`` on stderr and exit 2 (a usage error is unusable input), instead
+    of click's ``Usage: ...`` block."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as e:
+            hint = f"; see 'psonurbs {e.ctx.info_name} --help'" if e.ctx is not None and e.ctx.parent else ""
+            _error(f"{e.format_message().rstrip('.')}{hint}")
+            code = EXIT_INPUT
+        except click.ClickException as e:
+            _error(e.format_message())
+            code = e.exit_code
+        except click.exceptions.Abort:  # Ctrl-C or end of input while click prompts or parses
+            click.echo("psonurbs: interrupted", err=True)
+            code = EXIT_INTERRUPTED
+        if not standalone_mode:
+            return code
+        sys.exit(code if isinstance(code, int) else EXIT_OK)
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(psonurbs.__version__, "--version", prog_name="psonurbs")
 def cli() -> None:
     """Fit NURBS surfaces to 3D point clouds by particle swarm optimisation."""
@@ -143,6 +184,10 @@ def cli() -> None:
               help="Override strategy.")
 @jobs_option("Fit clouds in N worker processes (one BLAS thread each); the files are identical "
              "to --jobs 1.")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Fit the clouds on a dask cluster instead: a scheduler address (tcp://host:8786), "
+                   "a scheduler file (scheduler.json), or local:N for N local worker processes. "
+                   "Needs the dask extra; the files are identical to --jobs 1.")
 @click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
               help="Also export the exact surface (trimmed to its loops if it has any): 3dm "
                    "(Rhino; needs rhino3dm), iges (IGES 5.3 entity 128, trimmed: 144, STEM.igs), "
@@ -153,9 +198,9 @@ def cli() -> None:
 @click.pass_context
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
-        topology: str | None, strategy: str | None, jobs: int, formats: tuple[str, ...],
-        max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
-    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts).
+        topology: str | None, strategy: str | None, jobs: int, scheduler: str | None,
+        formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
+    """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
 
     A CLOUD may be a file, a directory (its cloud files) or a quoted glob
     pattern ('scans/*.ply', 'scans/**/*.xyz'). For a cloud with file stem
@@ -182,6 +227,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       psonurbs fit data_samples/franke_noisy.ply -c data_samples/franke_noisy.yaml -o results/
       psonurbs fit scans/*.ply -c configs/patch.yaml -o results/ --seed 3 -q
       psonurbs fit scans/ -o results/ --jobs 4 --format iges --format obj-nurbs
+      psonurbs fit 'survey/*.laz' -o results/ --scheduler tcp://head-node:8786 -q
       psonurbs fit 'scans/**/*.ply' -o results/ --max-rmse-rel 1e-3 -q   # CI gate
       psonurbs fit dome.xyz -o results/ --topology sphere --particles 20 --iterations 100
 
@@ -194,13 +240,16 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
            could not be used; the others were still fitted)
       3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
            (its files are written; the others are still fitted)
+      4    a worker process died while fitting a cloud (with --jobs N:
+           killed, out of memory; with --scheduler: lost twice); the
+           others are still fitted
       130  interrupted (Ctrl-C); no half-written files are left
       143  terminated (SIGTERM, e.g. a CI timeout); no half-written files
 
-    When several apply, the most severe wins: 143 > 130 > 1 > 2 > 3.
+    When several apply, the most severe wins: 143 > 130 > 1 > 4 > 2 > 3.
     """
     try:
-        code = _fit_all(clouds, config_path, out_dir, quiet, jobs, formats,
+        code = _fit_all(clouds, config_path, out_dir, quiet, jobs, scheduler, formats,
                         Gate(max_rmse, max_rmse_rel), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy))
@@ -213,10 +262,13 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
 
 
 def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, quiet: bool,
-             jobs: int, formats: tuple[str, ...], gate: Gate, fitter, overrides: dict) -> int:
+             jobs: int, scheduler: str | None, formats: tuple[str, ...], gate: Gate, fitter,
+             overrides: dict) -> int:
     try:
         config = load_config(config_path).with_overrides(**overrides)
         formats = check_formats(formats)
+        preflight(config, str(config_path) if config_path else "the default config with the command-line options")
+        cluster = _cluster(scheduler, jobs)
     except ConfigError as e:
         _error(str(e))
         return EXIT_INPUT
@@ -226,7 +278,11 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
         _error(f"{out_dir}: cannot create the output directory ({e.strerror or e})")
         return EXIT_INPUT
     work = jobs_from_inputs(expand_inputs(clouds), config)
-    rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet, fitter)
+    try:
+        rows = _run_and_report(work, out_dir, formats, jobs, gate, quiet, fitter, cluster)
+    except ConfigError as e:  # the scheduler cannot be reached, or its workers lack psonurbs
+        _error(str(e))
+        return EXIT_INPUT
     code = exit_code(rows)
     try:
         write_summary(out_dir, rows, gate)
@@ -236,12 +292,23 @@ def _fit_all(clouds: tuple[str, ...], config_path: Path | None, out_dir: Path, q
     return code
 
 
+def _cluster(scheduler: str | None, jobs: int) -> Scheduler | None:
+    """The parsed ``--scheduler`` (ConfigError: malformed, combined with --jobs, no dask)."""
+    if scheduler is None:
+        return None
+    if jobs > 1:
+        raise ConfigError("--scheduler and --jobs do not go together: the cluster's workers do the work")
+    parsed = Scheduler.parse(scheduler)
+    check_available()
+    return parsed
+
+
 def _progress_enabled(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty()
 
 
 def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jobs: int,
-                    gate: Gate, quiet: bool, fitter=None) -> list[Row]:
+                    gate: Gate, quiet: bool, fitter=None, scheduler: Scheduler | None = None) -> list[Row]:
     """Run the batch with the progress bars; report each cloud as it finishes."""
     from tqdm import tqdm
 
@@ -250,7 +317,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
     clouds_bar = tqdm(total=len(work), desc="clouds", unit="cloud", file=sys.stderr,
                       disable=not (show and several), leave=False, dynamic_ncols=True)
     swarm_bar = None
-    if len(work) == 1:
+    if len(work) == 1 and scheduler is None:
         swarm_bar = tqdm(total=work[0].config.swarm.iterations, desc=work[0].path.name, unit="it",
                          file=sys.stderr, disable=not show, leave=False, dynamic_ncols=True)
 
@@ -269,7 +336,7 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
     try:
         return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
-                         on_row=on_row, on_iteration=on_iteration, fit=fitter)
+                         on_row=on_row, on_iteration=on_iteration, fit=fitter, scheduler=scheduler)
     finally:
         if swarm_bar is not None:
             swarm_bar.close()
@@ -277,19 +344,19 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
 
 def _report(row: Row) -> None:
-    if row.status == "bad-input":
+    if row.status in ("bad-input", WORKER_LOST):
         _error(row.message)
         return
     if row.status == "internal-error":
         _internal_error(f"{row.file}: {row.message}", row.detail)
         return
-    name = Path(row.file).name
+    name = one_line(Path(row.file).name)
     line = (f"{name}: {row.points} points, net {row.net} ({row.topology}), "
             f"rmse {row.rmse:.2e}, max {row.max_error:.2e}, {row.seconds:.1f} s")
     click.echo("; ".join([line, *row.notes]))
     if row.status == "gate-exceeded":
         gate_reason = row.message.split("; ")[0]
-        click.echo(f"psonurbs: gate exceeded: {row.file}: {gate_reason}", err=True)
+        click.echo(f"psonurbs: gate exceeded: {one_line(row.file)}: {gate_reason}", err=True)
 
 
 @cli.command("score")

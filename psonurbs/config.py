@@ -28,8 +28,9 @@ import math
 import numbers
 import os
 import re
+import reprlib
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Hashable, Mapping
 
 import yaml
 
@@ -45,6 +46,8 @@ __all__ = [
     "STRATEGIES",
     "load_config",
     "config_from_dict",
+    "BOUNDS",
+    "Bound",
 ]
 
 
@@ -52,14 +55,33 @@ __all__ = [
 # Each takes the dotted key (for the message) and the raw value, and returns the
 # normalised value (Python int / float / tuple) or raises ConfigError.
 
+SHOWN_CHARACTERS = 40  # a value in an error message is cut to about this many characters
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = SHOWN_CHARACTERS
+_SHORT.maxlist = _SHORT.maxtuple = _SHORT.maxdict = _SHORT.maxset = 6
+_SHORT.maxlevel = 3
+
+
 def _show(value: Any) -> str:
+    """A value as the user wrote it (YAML words for null and booleans), cut to a few dozen
+    characters: never the whole of a huge or deeply nested value (reprlib stops early)."""
     if value is None:
         return "null"
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, str):
-        return repr(value)
-    return str(value)
+    try:
+        text = _SHORT.repr(value) if isinstance(value, str) else _plain(value)
+    except ValueError:  # an integer with more digits than Python will print
+        return "an integer with more than 4300 digits"
+    return text if len(text) <= 2 * SHOWN_CHARACTERS else text[:SHOWN_CHARACTERS] + "..."
+
+
+def _plain(value: Any) -> str:
+    """str() for numbers (``1e-06``, not ``1e-06`` in quotes), the short repr for the rest."""
+    if isinstance(value, numbers.Number):
+        text = str(value)
+        return text if len(text) <= SHOWN_CHARACTERS else f"{text[:12]}...{text[-12:]} ({len(text)} digits)"
+    return _SHORT.repr(value)
 
 
 def _fail(key: str, expected: str, value: Any) -> ConfigError:
@@ -77,13 +99,27 @@ def _is_real(value: Any) -> bool:
 def _int(key: str, value: Any, *, minimum: int, what: str) -> int:
     if not _is_int(value) or value < minimum:
         raise _fail(key, what, value)
+    _within_bound(key, value)
     return int(value)
 
 
 def _float(key: str, value: Any, *, what: str, ok=lambda x: True) -> float:
     if not _is_real(value) or not math.isfinite(float(value)) or not ok(float(value)):
         raise _fail(key, what, value)
+    _within_bound(key, float(value))
     return float(value)
+
+
+class _TooLarge(ConfigError):
+    """A value above its bound: its own message, kept when the value is an item of a list."""
+
+
+def _within_bound(key: str, value) -> None:
+    """Refuse a value above the key's bound in :data:`BOUNDS`, naming the bound."""
+    bound = BOUNDS.get(key)
+    if bound is not None and value > bound.most:
+        raise _TooLarge(f"config key '{key}': {_show(value)} is too large: at most {bound.most:,} "
+                          f"({bound.why})")
 
 
 def _pair(key: str, value: Any, item, what: str) -> tuple:
@@ -91,6 +127,8 @@ def _pair(key: str, value: Any, item, what: str) -> tuple:
         raise _fail(key, f"a list of 2 {what}", value)
     try:
         return tuple(item(v) for v in value)
+    except _TooLarge:
+        raise
     except ConfigError:
         raise _fail(key, f"a list of 2 {what}", list(value)) from None
 
@@ -99,6 +137,39 @@ def _choice(key: str, value: Any, choices: tuple[str, ...]) -> str:
     if not isinstance(value, str) or value not in choices:
         raise _fail(key, "one of " + ", ".join(choices), value)
     return value
+
+
+# ---- bounds ----------------------------------------------------------------
+# Every size a config sets has an upper bound, so that no value can make a fit allocate
+# or compute without end; the error names the bound. New keys add a row. (What a whole
+# config implies for a given cloud, the largest array and the net against the point
+# count, is judged by psonurbs.fitting.budget before fitting.)
+
+@dataclass(frozen=True)
+class Bound:
+    most: float  # the largest value allowed
+    why: str  # what the bound protects, for the message
+
+
+BOUNDS: dict[str, Bound] = {
+    "orders": Bound(10, "degree 9 at most"),
+    "net_size": Bound(1000, "control points along one direction"),
+    "tessellation": Bound(10_000, "mesh vertices along one direction"),
+    "swarm_points": Bound(100_000, "points the swarm's fitness sees"),
+    "polish_iterations": Bound(10_000, "rounds of parameter correction"),
+    "swarm.particles": Bound(10_000, "particles of the swarm"),
+    "swarm.iterations": Bound(100_000, "generations of the swarm, rows of the error curve"),
+    "swarm.seed": Bound(2**64 - 1, "a 64-bit seed"),
+    "swarm.inertia": Bound(10, "w; a swarm is stable below 1"),
+    "swarm.c1": Bound(10, "learning factor"),
+    "swarm.c2": Bound(10, "learning factor"),
+    "smoothing": Bound(1e6, "relative weight of the smoothness term"),
+    "weight_bounds": Bound(1e6, "NURBS weights"),
+}
+MAX_EVALUATIONS = 10_000_000  # swarm.particles x swarm.iterations: fitness evaluations of one fit
+MAX_TESSELLATION_VERTICES = 4_000_000  # tessellation[0] x tessellation[1]
+MIN_SWARM_POINTS = 16  # fewer cannot judge a particle (and the robust pass may leave none of them)
+MIN_WEIGHT_BOUND = 1e-6  # weight_bounds[0] at least this (its log bounds the swarm's search)
 
 
 # ---- the schema ------------------------------------------------------------
@@ -130,6 +201,10 @@ class SwarmConfig:
             put(name, _float(f"swarm.{name}", getattr(self, name), what="a finite number >= 0",
                              ok=lambda x: x >= 0))
         put("seed", _int("swarm.seed", self.seed, minimum=0, what="an integer >= 0"))
+        if self.particles * self.iterations > MAX_EVALUATIONS:
+            raise ConfigError(f"config keys 'swarm.particles' x 'swarm.iterations': {self.particles:,} x "
+                              f"{self.iterations:,} = {self.particles * self.iterations:,} fitness evaluations "
+                              f"is too many: at most {MAX_EVALUATIONS:,}")
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -209,18 +284,24 @@ class FitConfig:
         put("swarm", swarm)
         put("smoothing", _float("smoothing", self.smoothing, what="a finite number >= 0",
                                 ok=lambda x: x >= 0))
-        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=1,
-                                 what="a positive integer"))
+        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=MIN_SWARM_POINTS,
+                                 what=f"an integer >= {MIN_SWARM_POINTS}"))
         put("polish_iterations", _int("polish_iterations", self.polish_iterations, minimum=0,
                                       what="an integer >= 0"))
         put("tessellation", _pair("tessellation", self.tessellation,
                                   lambda v: _int("tessellation", v, minimum=2, what=""),
                                   "integers >= 2"))
+        vertices = self.tessellation[0] * self.tessellation[1]
+        if vertices > MAX_TESSELLATION_VERTICES:
+            raise ConfigError(f"config key 'tessellation': {self.tessellation[0]:,} x {self.tessellation[1]:,} = "
+                              f"{vertices:,} mesh vertices is too many: at most {MAX_TESSELLATION_VERTICES:,}")
         lo, hi = _pair("weight_bounds", self.weight_bounds,
                        lambda v: _float("weight_bounds", v, what="", ok=lambda x: x > 0),
                        "positive numbers")
         if not lo <= 1.0 <= hi:
             raise _fail("weight_bounds", "[lo, hi] with 0 < lo <= 1 <= hi", [lo, hi])
+        if lo < MIN_WEIGHT_BOUND:
+            raise ConfigError(f"config key 'weight_bounds': {_show(lo)} is too small: at least {MIN_WEIGHT_BOUND:g}")
         put("weight_bounds", (lo, hi))
         put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
                                    what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
@@ -275,9 +356,11 @@ _SWARM_KEYS = tuple(f.name for f in dataclasses.fields(SwarmConfig))
 def _check_keys(d: Mapping, known: tuple[str, ...], prefix: str) -> None:
     for key in d:
         if not isinstance(key, str) or key not in known:
-            name = f"{prefix}{key}"
+            name = f"{prefix}{key}" if isinstance(key, str) else f"{prefix}{_show(key)}"
+            if len(name) > 2 * SHOWN_CHARACTERS:
+                name = name[:SHOWN_CHARACTERS] + "..."
             hint = ""
-            if isinstance(key, str):
+            if isinstance(key, str) and len(key) <= 2 * SHOWN_CHARACTERS:
                 close = difflib.get_close_matches(key, known, n=1)
                 if close:
                     hint = f"; did you mean '{prefix}{close[0]}'?"
@@ -314,8 +397,49 @@ def config_from_dict(d: Mapping | None, source: str | None = None) -> FitConfig:
 
 # ---- YAML ------------------------------------------------------------------
 
+MAX_CONFIG_BYTES = 1 << 20  # a config file is a few hundred bytes; 1 MiB is plenty
+MAX_ALIASES = 100  # YAML aliases (*name) in one file
+MAX_NODES = 10_000  # nodes of the document with every alias expanded ("billion laughs")
+MAX_DEPTH = 32  # nesting of sequences and mappings
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-4`` as a float (YAML 1.2) and rejects duplicate keys."""
+    """SafeLoader that reads ``1e-4`` as a float (YAML 1.2), rejects duplicate keys and
+    refuses documents that would expand without bound: more than :data:`MAX_ALIASES`
+    aliases, more than :data:`MAX_NODES` nodes once the aliases are expanded, nesting
+    deeper than :data:`MAX_DEPTH` (the composer is recursive: 100,000 ``[`` would end in
+    a RecursionError). Each limit is checked while composing, before anything is built."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._aliases = self._depth = self._expanded = 0
+        self._sizes: dict[int, int] = {}  # id(node) -> its node count with aliases expanded
+
+    def _refuse(self, problem: str):
+        raise yaml.composer.ComposerError(None, None, problem, self.peek_event().start_mark)
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_ALIASES:
+                self._refuse(f"more than {MAX_ALIASES} aliases")
+            node = super().compose_node(parent, index)
+            self._count(self._sizes.get(id(node), 1))
+            return node
+        if self._depth >= MAX_DEPTH:
+            self._refuse(f"nested deeper than {MAX_DEPTH} levels")
+        self._depth += 1
+        start = self._expanded
+        self._count(1)
+        node = super().compose_node(parent, index)
+        self._sizes[id(node)] = self._expanded - start
+        self._depth -= 1
+        return node
+
+    def _count(self, nodes: int) -> None:
+        self._expanded += nodes
+        if self._expanded > MAX_NODES:
+            self._refuse(f"more than {MAX_NODES:,} values once its aliases are expanded")
 
 
 _Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
@@ -331,6 +455,9 @@ def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bo
     seen: dict = {}
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)
+        if not isinstance(key, Hashable):
+            raise yaml.constructor.ConstructorError(
+                None, None, f"a {type(key).__name__} cannot be a key", key_node.start_mark)
         if isinstance(key, str) and key in seen:
             raise yaml.constructor.ConstructorError(
                 None, None, f"duplicate key '{key}'", key_node.start_mark)
@@ -345,10 +472,11 @@ def load_config(path: str | os.PathLike | None) -> FitConfig:
     """Read and validate a YAML config file; ``None`` gives the defaults."""
     if path is None:
         return FitConfig()
-    path = existing_file(path, "a config file", ConfigError, missing="config file not found")
+    path = existing_file(path, "a config file", ConfigError, missing="config file not found",
+                         max_bytes=MAX_CONFIG_BYTES)
     name = str(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError:
         raise ConfigError(f"{name}: config file is not UTF-8 text") from None
     except OSError as e:
@@ -357,5 +485,11 @@ def load_config(path: str | os.PathLike | None) -> FitConfig:
         data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as e:
         message = " ".join(str(e).split())
-        raise ConfigError(f"malformed YAML in {name}: {message}") from None
+        raise ConfigError(f"malformed YAML in {name}: {_cut(message, 300)}") from None
+    except ValueError as e:  # an integer of more than 4300 digits
+        raise ConfigError(f"malformed YAML in {name}: {_cut(str(e), 120)}") from None
     return config_from_dict(data, source=name)
+
+
+def _cut(text: str, length: int) -> str:
+    return text if len(text) <= length else text[:length] + "..."

@@ -53,7 +53,7 @@ def test_expand_reports_empty_directories_and_patterns(tmp_path):
     items = expand_inputs([tmp_path / "empty", str(tmp_path / "*.ply")])
     assert all(isinstance(item, Row) and item.status == "bad-input" for item in items)
     assert items[0].message == (f"{tmp_path / 'empty'}: directory has no point cloud files "
-                                "(.ply, .pcd, .xyz, .txt, .pts)")
+                                "(.ply, .pcd, .xyz, .txt, .pts, .las, .laz, .e57)")
     assert items[1].message == f"{tmp_path / '*.ply'}: no point cloud files match this pattern"
     jobs = jobs_from_inputs(items, FitConfig())
     rows = run_batch(jobs, tmp_path / "out")
@@ -96,7 +96,8 @@ def test_summary_rows_for_good_bad_and_gated_clouds(tmp_path, fake_fit):
     assert float(rows[1]["seconds"]) >= 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["exit_code"] == 2
-    assert summary["counts"] == {"ok": 0, "gate-exceeded": 1, "bad-input": 1, "internal-error": 0}
+    assert summary["counts"] == {"ok": 0, "gate-exceeded": 1, "bad-input": 1, "worker-lost": 0,
+                                 "internal-error": 0}
     assert summary["gate"] == {"max_rmse": 1e-4, "max_rmse_rel": None}
     assert [c["status"] for c in summary["clouds"]] == ["bad-input", "gate-exceeded"]
     assert summary["clouds"][1]["rmse"] == 1.234e-4

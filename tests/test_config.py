@@ -156,7 +156,8 @@ def test_every_sample_config_loads(path):
     ("strategy: random\n", "cfg.yaml: config key 'strategy': expected one of hybrid, full"),
     ("smoothing: -1e-3\n", "cfg.yaml: config key 'smoothing': expected a finite number >= 0, "
                            "got -0.001"),
-    ("swarm_points: 0\n", "cfg.yaml: config key 'swarm_points': expected a positive integer, got 0"),
+    ("swarm_points: 0\n", "cfg.yaml: config key 'swarm_points': expected an integer >= 16, got 0"),
+    ("swarm_points: 15\n", "cfg.yaml: config key 'swarm_points': expected an integer >= 16, got 15"),
     ("polish_iterations: -1\n", "cfg.yaml: config key 'polish_iterations': expected an integer >= 0"),
     ("tessellation: [1, 10]\n", "cfg.yaml: config key 'tessellation': expected a list of 2 integers >= 2"),
     ("weight_bounds: [1.5, 5]\n", "cfg.yaml: config key 'weight_bounds': expected [lo, hi] with "
@@ -167,6 +168,20 @@ def test_every_sample_config_loads(path):
     ("cross_validation: 0.5\n", "cfg.yaml: config key 'cross_validation': expected true or false, got 0.5"),
     ("remove_outliers: 1\n", "cfg.yaml: config key 'remove_outliers': expected true or false, got 1"),
     ("- orders\n- net_size\n", "cfg.yaml: the top level must be a mapping of config keys"),
+    ("? [1, 2]\n: 3\n", "malformed YAML in cfg.yaml: a list cannot be a key"),
+    ("swarm: {? {a: 1} : 2}\n", "malformed YAML in cfg.yaml: a dict cannot be a key"),
+    ("1: 2\n", "cfg.yaml: unknown config key '1'"),
+    ("swarm:\n  particles: 1000000000\n", "cfg.yaml: config key 'swarm.particles': 1000000000 is too large: "
+                                         "at most 10,000 (particles of the swarm)"),
+    ("swarm: {particles: 5000, iterations: 5000}\n", "cfg.yaml: config keys 'swarm.particles' x "
+                                                    "'swarm.iterations': 5,000 x 5,000 = 25,000,000 fitness "
+                                                    "evaluations is too many: at most 10,000,000"),
+    ("net_size: [5, 2000]\n", "cfg.yaml: config key 'net_size': 2000 is too large: at most 1,000"),
+    ("tessellation: [3000, 3000]\n", "cfg.yaml: config key 'tessellation': 3,000 x 3,000 = 9,000,000 mesh "
+                                    "vertices is too many: at most 4,000,000"),
+    ("weight_bounds: [1.0e-300, 5]\n", "cfg.yaml: config key 'weight_bounds': 1e-300 is too small: at least 1e-06"),
+    ("topology: " + "x" * 10_000 + "\n", "cfg.yaml: config key 'topology': expected one of open, cylinder, "
+                                       "sphere, torus, auto, got 'xxxxxxxxxxxxxxxxx...xxxxxxxxxxxxxxxxxx'"),
 ])
 def test_error_names_file_and_key(tmp_path, text, expected):
     assert error_of(tmp_path, text).startswith(expected)
@@ -210,3 +225,28 @@ def test_trim_key_accepts_auto_true_false_only():
     for bad in ("yes", 1, None):
         with pytest.raises(ConfigError, match="'trim': expected auto, true or false"):
             config_from_dict({"trim": bad})
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("a0: &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9]\n" + "".join(
+        f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 10)) + "tessellation: *a9\n",
+     "more than 10,000 values once its aliases are expanded"),
+    ("a: &a 1\nb: [" + ", ".join(["*a"] * 101) + "]\n", "more than 100 aliases"),
+    ("tessellation: " + "[" * 40 + "]" * 40 + "\n", "nested deeper than 32 levels"),
+    ("swarm:\n  particles: " + "9" * 5000 + "\n", "Exceeds the limit (4300 digits)"),
+])
+def test_yaml_that_would_expand_without_bound_is_refused(tmp_path, text, problem):
+    message = error_of(tmp_path, text)
+    assert message.startswith("malformed YAML in cfg.yaml: ") and problem in message
+    assert len(message) < 400
+
+
+def test_a_large_config_file_is_refused_unread(tmp_path):
+    message = error_of(tmp_path, "# " + "x" * (1 << 20) + "\n")
+    assert message == "cfg.yaml: file is too large (1 MiB; at most 1 MiB for a config file)"
+
+
+def test_config_with_a_byte_order_mark_is_read(tmp_path):
+    path = tmp_path / "cfg.yaml"
+    path.write_bytes(b"\xef\xbb\xbfswarm: {particles: 3}\n")
+    assert load_config(path).swarm.particles == 3

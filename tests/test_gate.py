@@ -33,9 +33,9 @@ def good(tmp_path):
 def test_help_documents_every_exit_code_and_the_precedence():
     text = " ".join(run("fit", "--help").output.split())
     for needle in ["0 every cloud was fitted", "1 internal error", "2 unusable input or config",
-                   "3 gate exceeded", "130 interrupted", "143 terminated",
-                   "most severe wins: 143 > 130 > 1 > 2 > 3",
-                   "--max-rmse X", "--max-rmse-rel X", "--jobs", "--format"]:
+                   "3 gate exceeded", "4 a worker process died", "130 interrupted", "143 terminated",
+                   "most severe wins: 143 > 130 > 1 > 4 > 2 > 3",
+                   "--max-rmse X", "--max-rmse-rel X", "--jobs", "--scheduler", "--format"]:
         assert needle in text, needle
 
 

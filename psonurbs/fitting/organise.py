@@ -46,6 +46,33 @@ class Cloud:
         return len(self.points)
 
 
+# Coordinates a fit can represent: every squared distance between points stays a normal
+# float (above 1e-300, below 1e300), and the cloud's extent keeps a dozen significant
+# digits once its centroid is subtracted.
+COORDINATE_LIMIT = 1e150  # |coordinate| at most this, the bounding-box diagonal at least its inverse
+MIN_RELATIVE_EXTENT = 1e-12  # the diagonal over the largest |coordinate|, at least
+
+
+def check_coordinates(points: np.ndarray) -> None:
+    """Raise InputError for finite coordinates whose extent or magnitude no fit can represent."""
+    magnitude = float(np.max(np.abs(points), initial=0.0))
+    if magnitude > COORDINATE_LIMIT:
+        raise InputError(f"coordinates reach {magnitude:.3g}, beyond {COORDINATE_LIMIT:g}: squared distances "
+                         "between points overflow; rescale the cloud")
+    extent = np.ptp(points, axis=0) if len(points) else np.zeros(3)
+    largest = float(extent.max())
+    if largest == 0.0:
+        raise InputError("all points are the same point: no surface is defined by them")
+    diagonal = largest * float(np.linalg.norm(extent / largest))  # scaled: no underflow in the squares
+    if diagonal < 1.0 / COORDINATE_LIMIT:
+        raise InputError(f"the cloud's bounding-box diagonal {diagonal:.3g} is below {1 / COORDINATE_LIMIT:g}: "
+                         "squared distances between points underflow; rescale the cloud")
+    if diagonal < MIN_RELATIVE_EXTENT * magnitude:
+        raise InputError(f"the cloud's bounding-box diagonal {diagonal:.3g} is below {MIN_RELATIVE_EXTENT:g} of "
+                         f"its coordinates ({magnitude:.3g}): too few significant digits are left once "
+                         "its centroid is subtracted; subtract an offset from the coordinates")
+
+
 def check_fittable(points: np.ndarray, orders: tuple[int, int]) -> None:
     """Raise InputError for a cloud no surface of these orders can be fitted to."""
     points = np.asarray(points)
@@ -56,6 +83,7 @@ def check_fittable(points: np.ndarray, orders: tuple[int, int]) -> None:
     bad = ~np.all(np.isfinite(points), axis=1)
     if bad.any():
         raise InputError(f"{int(bad.sum())} points have NaN or infinite coordinates")
+    check_coordinates(points)
     distinct = len(np.unique(points, axis=0))
     needed = orders[0] * orders[1]
     if distinct < needed:

@@ -79,6 +79,7 @@ class FullSearch:
         start = np.concatenate([self.plane_net().ravel(), np.zeros(self.n_free),
                                 np.arange(1, cu + 1) / (cu + 1), np.arange(1, cv + 1) / (cv + 1),
                                 self.uv0.ravel()])
+        start = np.clip(start, *self.bounds())  # the plane may leave the box (a closed surface's cloud)
         scale = 0.1 * (self.box[1] - self.box[0]).max()
         swarm = [start]
         for _ in range(1, n_particles):

@@ -1,11 +1,14 @@
-"""Reading point clouds (PLY, PCD, XYZ text) as (N, 3) arrays, refusing what is not one.
+"""Reading point clouds (PLY, PCD, XYZ text; LAS, LAZ, E57 through
+:mod:`psonurbs.formats.scans`) as (N, 3) arrays, refusing what is not one.
 
 Reading refuses anything that is not a usable cloud with an
 :class:`~psonurbs.errors.InputError` whose message starts with the file name
-(``"scan.ply: file is empty"``). open3d alone is too forgiving for that: for a
-missing or malformed file it returns an empty cloud and prints a warning, and for
-a truncated binary PLY it pads with zeros. So the PLY header is checked here, and
-open3d's messages are captured and turned into the error.
+(``"scan.ply: file is empty"``): a path that is not a regular file (a named pipe, a
+device, a symlink to one), a PLY or PCD whose body holds fewer points than its header
+declares (or a count its size cannot hold), text beyond :data:`MAX_TEXT_BYTES`, and
+NaN or infinite coordinates. PLY and PCD are read by :mod:`.ply` and :mod:`.pcd`
+(x, y, z by name); open3d only for the layouts those leave to it, its messages
+captured and turned into the error.
 """
 from __future__ import annotations
 
@@ -22,47 +25,74 @@ import numpy as np
 
 from psonurbs.errors import InputError, existing_file
 
-__all__ = ["CLOUD_SUFFIXES", "read_cloud"]
+from .records import MAX_TEXT_BYTES, Cloud, check_point_count, check_text_size, is_number
+from .scans import SCAN_SUFFIXES, read_scan
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts")
+__all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "Cloud", "load_cloud", "read_cloud", "read_with_open3d"]
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts") + SCAN_SUFFIXES
 _TEXT_SUFFIXES = (".xyz", ".txt", ".pts")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 # ---- reading ---------------------------------------------------------------
 
-def read_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Read a point cloud file as an ``(N, 3)`` float64 array.
+def read_cloud(path: str | os.PathLike, max_points: int | None = None) -> np.ndarray:
+    """Read a point cloud file as an ``(N, 3)`` float64 array (see :func:`load_cloud`)."""
+    return load_cloud(path, max_points).points
 
-    ``.ply`` and ``.pcd`` are read with open3d; ``.xyz``, ``.txt`` and ``.pts``
-    are text with x, y, z in the first three columns, separated by whitespace or
-    commas (``#`` starts a comment; a ``.pts`` file may begin with a point count).
+
+def load_cloud(path: str | os.PathLike, max_points: int | None = None) -> Cloud:
+    """Read a point cloud file: its points as an ``(N, 3)`` float64 array, and notes.
+
+    ``.ply`` and ``.pcd`` are read by their headers (:mod:`.ply`, :mod:`.pcd`); ``.xyz``,
+    ``.txt`` and ``.pts`` are text with x, y, z in the first three columns, separated by
+    whitespace or commas (``#`` starts a comment; a ``.pts`` file may begin with a point
+    count); ``.las``, ``.laz`` and ``.e57`` need the optional extra ``scan``
+    (:mod:`psonurbs.formats.scans`: real coordinates, E57 scans merged by their poses).
+    With ``max_points``, a PLY or PCD whose header declares more points is refused
+    before its body is read (the caller knows what it can fit).
 
     Raises :class:`InputError` (message starting with the path) for a missing
-    file, a directory, an unknown extension, an unreadable, empty or malformed
-    file, a PLY without vertices, and NaN or infinite coordinates.
+    file, a directory or anything else that is not a regular file, an unknown
+    extension, an unreadable, empty or malformed file, a PLY or PCD body shorter than
+    its header declares, a PLY without vertices, and NaN or infinite coordinates.
     """
     path = existing_file(path, "a point cloud file", InputError)
     name = str(path)
     suffix = path.suffix.lower()
     if suffix not in CLOUD_SUFFIXES:
-        shown = f"'{path.suffix}'" if path.suffix else "no extension"
+        shown = f"'{path.suffix[:20]}'" if path.suffix else "no extension"
         raise InputError(f"{name}: unknown point cloud type ({shown}); "
                          f"expected one of {', '.join(CLOUD_SUFFIXES)}")
+    notes: tuple[str, ...] = ()
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
+            size = os.fstat(f.fileno()).st_size
+        if not head:
+            points = None
+        elif suffix in SCAN_SUFFIXES:
+            scan = read_scan(path, name)
+            points, notes = scan.points, scan.notes
+        elif suffix == ".ply":
+            from .ply import read_ply
+
+            points = read_ply(path, name, head, size, max_points)
+        elif suffix == ".pcd":
+            from .pcd import read_pcd
+
+            points = read_pcd(path, name, head, size, max_points)
+        else:
+            check_text_size(name, size, "a text cloud")
+            points = _read_text(path, name, suffix)
     except OSError as e:
         raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
-    if not head:
+    except MemoryError:
+        raise InputError(f"{name}: not enough memory to read the file") from None
+    if points is None:
         raise InputError(f"{name}: file is empty")
-
-    if suffix == ".ply":
-        points = _read_ply(path, name, head)
-    elif suffix == ".pcd":
-        points = _read_open3d(path, name, "pcd")
-    else:
-        points = _read_text(path, name, suffix)
+    check_point_count(name, len(points), max_points)
 
     if len(points) == 0:
         raise InputError(f"{name}: no points found in the file")
@@ -72,7 +102,7 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
     if n_bad:
         raise InputError(f"{name}: {n_bad} of {len(points)} points have non-finite coordinates "
                          f"({int(bad_nan.sum())} NaN, {int(bad_inf.sum())} infinite)")
-    return np.ascontiguousarray(points, dtype=np.float64)
+    return Cloud(np.ascontiguousarray(points, dtype=np.float64), notes)
 
 
 @contextlib.contextmanager
@@ -115,7 +145,9 @@ def _open3d_detail(captured: str) -> str:
     return "; ".join(lines[:2])
 
 
-def _read_open3d(path: Path, name: str, fmt: str, expected: int | None = None) -> np.ndarray:
+def read_with_open3d(path: Path, name: str, fmt: str, expected: int) -> np.ndarray:
+    """open3d's reading of a layout the own readers leave to it; refused unless it read
+    exactly the ``expected`` number of points and said nothing alarming."""
     import open3d as o3d
 
     with _captured_output() as captured, \
@@ -124,51 +156,13 @@ def _read_open3d(path: Path, name: str, fmt: str, expected: int | None = None) -
                                         remove_infinite_points=False, print_progress=False)
     points = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
     detail = _open3d_detail(captured[0])
-    failed = ("RPly" in detail or "failed" in detail.lower()
-              or (expected is not None and len(points) != expected))
+    failed = "RPly" in detail or "failed" in detail.lower() or len(points) != expected
     if failed or (len(points) == 0 and detail):
         what = f"malformed or truncated {fmt.upper()} file"
-        if expected is not None and len(points) != expected:
-            what += f" (header declares {expected} vertices, {len(points)} read)"
+        if len(points) != expected:
+            what += f" (header declares {expected} points, {len(points)} read)"
         raise InputError(f"{name}: {what}" + (f": {detail}" if detail else ""))
     return points
-
-
-def _read_ply(path: Path, name: str, head: bytes) -> np.ndarray:
-    if not head.startswith(b"ply"):
-        raise InputError(f"{name}: not a PLY file (it does not start with 'ply')")
-    end = head.find(b"end_header")
-    if end < 0:
-        raise InputError(f"{name}: malformed PLY header (no 'end_header' line "
-                         "in the first 64 KiB)")
-    elements: dict[str, int] = {}
-    props: dict[str, list[str]] = {}
-    current = None
-    for raw in head[:end].decode("ascii", "replace").splitlines()[1:]:
-        words = raw.split()
-        if not words:
-            continue
-        if words[0] == "element" and len(words) == 3:
-            try:
-                count = int(words[2])
-            except ValueError:
-                raise InputError(f"{name}: malformed PLY header line '{raw.strip()}'") from None
-            current = words[1]
-            elements[current] = count
-            props[current] = []
-        elif words[0] == "property" and current is not None:
-            props[current].append(words[-1])
-    if "vertex" not in elements:
-        others = ", ".join(elements) or "none"
-        raise InputError(f"{name}: PLY file has no vertices (no 'vertex' element; "
-                         f"elements: {others})")
-    if elements["vertex"] == 0:
-        raise InputError(f"{name}: PLY file has no vertices (header declares 0)")
-    missing = [c for c in "xyz" if c not in props["vertex"]]
-    if missing:
-        raise InputError(f"{name}: PLY vertices have no {'/'.join(missing)} coordinate "
-                         f"(properties: {', '.join(props['vertex']) or 'none'})")
-    return _read_open3d(path, name, "ply", expected=elements["vertex"])
 
 
 _SPLIT = re.compile(r"[,\s]+")
@@ -176,11 +170,9 @@ _SPLIT = re.compile(r"[,\s]+")
 
 def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = path.read_bytes().decode("utf-8-sig")  # a byte-order mark is not data
     except UnicodeDecodeError:
         raise InputError(f"{name}: not a text point cloud (the file contains binary data)") from None
-    except OSError as e:
-        raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
 
     # Fast path: numpy's C parser. Anything it does not like (a .pts count line,
     # ragged rows, a bad token) goes through the slow path, which either reads it
@@ -215,17 +207,9 @@ def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
         try:
             rows.append((float(tokens[0]), float(tokens[1]), float(tokens[2])))
         except ValueError:
-            bad = next(t for t in tokens[:3] if not _is_float(t))
+            bad = next(t for t in tokens[:3] if not is_number(t))
             errors.append(f"line {lineno}: '{bad[:40]}' is not a number")
     if errors:
         more = f" (and {len(errors) - 1} more bad lines)" if len(errors) > 1 else ""
         raise InputError(f"{name}: malformed point data at {errors[0]}{more}")
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
-
-
-def _is_float(token: str) -> bool:
-    try:
-        float(token)
-        return True
-    except ValueError:
-        return False

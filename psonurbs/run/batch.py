@@ -6,8 +6,9 @@
   sorted) and glob patterns into a list of cloud paths; an argument that names nothing
   usable becomes an error row instead.
 * :func:`run_batch` fits each :class:`~psonurbs.run.inputs.Job` (a path and its config),
-  in this process (``workers=1``) or in a pool of worker processes
-  (:mod:`psonurbs.run.workers`). A worker only computes: it returns the rendered outputs
+  in this process (``workers=1``), in a pool of worker processes
+  (:mod:`psonurbs.run.workers`) or on a dask cluster (:mod:`psonurbs.run.cluster`, the
+  clouds read here). A worker only computes: it returns the rendered outputs
   and the parent writes them (atomically, all-or-nothing per cloud,
   :func:`psonurbs.formats.outputs.write_fit_outputs`), so a worker can be stopped at any
   moment without leaving a partial file, and ``workers=N`` writes byte-identical files
@@ -25,14 +26,30 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from psonurbs.errors import PsonurbsError
+from numpy.linalg import LinAlgError
 
+from psonurbs.errors import PsonurbsError
+from psonurbs.formats.clouds import Cloud, load_cloud
+
+from .cluster import Scheduler
 from .gate import Gate
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, printable, worker_lost_row
 from .workers import pool_run
 
-__all__ = ["FitOutcome", "fit_job", "run_batch"]
+__all__ = ["FitOutcome", "fit_cloud", "fit_job", "preflight", "read_job", "run_batch"]
+
+
+def preflight(config, source: str | None = None) -> None:
+    """Refuse (ConfigError, its message prefixed with ``source``) a config whose arrays
+    would be too large whatever the cloud."""
+    from psonurbs.errors import ConfigError
+    from psonurbs.fitting.budget import check_budget
+
+    try:
+        check_budget(config)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: {e}" if source else str(e)) from None
 
 
 @dataclass
@@ -55,20 +72,51 @@ def fit_job(job: Job, formats: Sequence[str] = (),
     :class:`~psonurbs.errors.PsonurbsError` gives a ``bad-input`` row, any other
     exception an ``internal-error`` row (with the traceback in ``row.detail``).
     """
-    import psonurbs
-    from psonurbs.formats.cad import render_exports
-    from psonurbs.formats.clouds import read_cloud
+    start = time.perf_counter()
+    cloud = read_job(job)
+    if isinstance(cloud, FitOutcome):
+        return cloud
+    outcome = fit_cloud(job, cloud, formats, on_iteration, fit)
+    outcome.row.seconds = time.perf_counter() - start
+    return outcome
 
-    path = job.path
-    row = Row(str(path))
+
+def read_job(job: Job) -> Cloud | FitOutcome:
+    """The job's cloud as read, or the outcome of a cloud that cannot be read or fitted
+    (its row): unreadable, coordinates not representable, or more than the config's
+    memory budget allows (:mod:`psonurbs.fitting.budget`)."""
+    from psonurbs.fitting.budget import check_budget, max_points
+    from psonurbs.fitting.organise import check_coordinates
+
     start = time.perf_counter()
     try:
-        points = read_cloud(path)
-        row.points = int(len(points))
+        cloud = load_cloud(job.path, max_points(job.config))
+        check_coordinates(cloud.points)  # refused before any fitter sees them
+        check_budget(job.config, len(cloud.points))
+        return cloud
+    except KeyboardInterrupt:
+        raise
+    except Exception as e:
+        return FitOutcome(_failed(Row(str(job.path)), job.path, e, time.perf_counter() - start), job.path.stem)
+
+
+def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
+              on_iteration: Callable[[int, float, float], None] | None = None,
+              fit: Callable | None = None) -> FitOutcome:
+    """Fit and render a cloud already read (the part a worker or a cluster runs); never
+    raises except on KeyboardInterrupt. ``row.seconds`` is the time taken here."""
+    import psonurbs
+    from psonurbs.formats.cad import render_exports
+
+    path = job.path
+    row = Row(str(path), points=int(len(cloud.points)))
+    start = time.perf_counter()
+    try:
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
-        result = fit(points, job.config, on_iteration=on_iteration)
+        result = fit(cloud.points, job.config, on_iteration=on_iteration)
         trim = getattr(result, "trim", None)
+        notes = [*cloud.notes, *result.notes]
         surface = result.surface.to_dict()
         if trim is not None:
             surface["trim"] = trim.to_list()
@@ -79,7 +127,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
             "surface": surface,
             "metrics": result.metrics,
             "fit": result.info,
-            "notes": list(result.notes),
+            "notes": notes,
             "config": job.config.to_dict(),
         }
         vertices, triangles = _mesh(result.surface, trim, job.config.tessellation)
@@ -89,7 +137,7 @@ def fit_job(job: Job, formats: Sequence[str] = (),
             from psonurbs.geometry.trim import Trim
 
             exact = NurbsSurface.from_dict(surface)  # what the JSON says, to the last digit
-            obj_extra, extra_files = render_exports(exact, formats, path.stem, len(vertices),
+            obj_extra, extra_files = render_exports(exact, formats, _export_name(path.stem), len(vertices),
                                                     Trim.from_list(surface.get("trim")))
         metrics = result.metrics
         row.topology = result.topology
@@ -98,12 +146,11 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         row.max_error = _number(metrics.get("max_error"))
         row.rmse_relative = _number(metrics.get("rmse_relative"))
         row.max_error_relative = _number(metrics.get("max_error_relative"))
-        row.notes = list(result.notes)
+        row.notes = notes
         if trim is not None and "3dm" in formats:
             from psonurbs.formats.cad import TRIM_3DM_NOTE
 
-            row.notes.append(TRIM_3DM_NOTE.replace("STEM", path.stem))
-            document["notes"].append(row.notes[-1])
+            notes.append(TRIM_3DM_NOTE.replace("STEM", path.stem))
         outputs = dict(document=document, vertices=vertices, triangles=triangles,
                        curve_header=list(result.curve_header), curve_rows=result.curve,
                        obj_extra=obj_extra, extra_files=extra_files)
@@ -111,16 +158,32 @@ def fit_job(job: Job, formats: Sequence[str] = (),
         return FitOutcome(row, path.stem, outputs, dict(metrics))
     except KeyboardInterrupt:
         raise
-    except PsonurbsError as e:
-        message = str(e)
+    except Exception as e:
+        return FitOutcome(_failed(row, path, e, time.perf_counter() - start), path.stem)
+
+
+def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
+    """``row`` for a cloud that failed: ``bad-input`` for a PsonurbsError (the message
+    starting with the path), ``internal-error`` with the traceback for anything else."""
+    if isinstance(error, PsonurbsError):
+        message = str(error)
         prefix = f"{path}: "
         row.status, row.message = BAD_INPUT, message if message.startswith(prefix) else prefix + message
-    except Exception as e:  # a bug: reported in the row, the batch goes on
+    elif isinstance(error, LinAlgError):  # a net these points and this smoothing leave undecided
+        row.status = BAD_INPUT
+        row.message = (f"{path}: the least-squares system of the fit is singular ({error}): the points cannot decide "
+                       "this net; use a smaller net_size or a smoothing above 0")
+    else:  # a bug: reported in the row, the batch goes on
         row.status = INTERNAL
-        row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        row.message = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
         row.detail = traceback.format_exc()
-    row.seconds = time.perf_counter() - start
-    return FitOutcome(row, path.stem)
+    row.seconds = seconds
+    return row
+
+
+def _export_name(stem: str) -> str:
+    """The surface's name inside CAD files: the stem, on one line, encodable as UTF-8."""
+    return "".join(c if c.isprintable() else "_" for c in printable(stem)) or "surface"
 
 
 def _mesh(surface, trim, tessellation: tuple[int, int]):
@@ -189,14 +252,18 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
               workers: int = 1, gate: Gate = Gate(),
               on_row: Callable[[Row], None] | None = None,
               on_iteration: Callable[[int, float, float], None] | None = None,
-              fit: Callable | None = None) -> list[Row]:
+              fit: Callable | None = None, scheduler: Scheduler | None = None) -> list[Row]:
     """Fit every job; returns one row per job, in the order of ``jobs``.
 
     ``on_row(row)`` is called in this process as each cloud finishes (in completion
-    order). ``fit`` is the fitter (see :func:`fit_job`; with workers, it must be importable
-    by name). ``on_iteration`` is passed to the fit when it runs in this process
-    (``workers == 1``). KeyboardInterrupt propagates after the pool is stopped; the
-    outputs of the clouds already finished are complete, the others are not written.
+    order). ``fit`` is the fitter (see :func:`fit_job`; with workers or a cluster, it must
+    be importable by name). ``on_iteration`` is passed to the fit when it runs in this
+    process (``workers == 1``, no scheduler). With a ``scheduler``
+    (:class:`~psonurbs.run.cluster.Scheduler`) the fits run on a dask cluster instead of
+    ``workers`` processes (:mod:`psonurbs.run.cluster`); this process still reads the
+    clouds and writes every file. KeyboardInterrupt propagates after the pool is stopped
+    (the futures cancelled); the outputs of the clouds already finished are complete, the
+    others are not written.
     """
     out_dir = Path(out_dir)
     rows: list[Row | None] = [None] * len(jobs)
@@ -211,6 +278,12 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
 
     # the refusals are reported where they stand in the input order (workers == 1) or first
     pending_reports = {k: rows[k] for k in range(len(jobs)) if rows[k] is not None}
+    if scheduler is not None:
+        for k, row in pending_reports.items():
+            done(k, row)
+        _run_on_cluster(jobs, todo, scheduler, formats, fit, lambda k, row: done(k, row),
+                        lambda outcome: _finish(outcome, out_dir, gate))
+        return rows  # type: ignore[return-value]
     if workers <= 1 or len(todo) <= 1:
         for k in range(len(jobs)):
             if k in pending_reports:
@@ -223,10 +296,40 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
     for k, row in pending_reports.items():
         done(k, row)
 
-    def lost(k: int, error: BaseException, trace: str) -> None:
-        done(k, Row(str(jobs[k].path), status=INTERNAL, detail=trace,
-                    message=f"worker process failed: {type(error).__name__}: {error}"))
+    def failed(k: int, error: str, trace: str) -> None:
+        done(k, Row(str(jobs[k].path), status=INTERNAL, detail=trace, message=f"worker process failed: {error}"))
 
     pool_run(fit_job, {k: (jobs[k], tuple(formats), None, fit) for k in todo}, min(workers, len(todo)),
-             lambda k, outcome: done(k, _finish(outcome, out_dir, gate)), lost)
+             lambda k, outcome: done(k, _finish(outcome, out_dir, gate)), failed,
+             lambda k, how: done(k, worker_lost_row(str(jobs[k].path), how)))
     return rows  # type: ignore[return-value]
+
+
+def _run_on_cluster(jobs: Sequence[Job], todo: Sequence[int], scheduler: Scheduler, formats: Sequence[str],
+                    fit: Callable | None, done: Callable[[int, Row], None],
+                    finish: Callable[[FitOutcome], Row]) -> None:
+    """Read each cloud here as the cluster has room, fit it there, write it here."""
+    from .cluster import cluster_run, stop_if_cancelled
+
+    read_seconds: dict[int, float] = {}
+
+    def prepare(k: int) -> tuple | None:
+        start = time.perf_counter()
+        cloud = read_job(jobs[k])
+        if isinstance(cloud, FitOutcome):  # unreadable: its row, no task
+            done(k, cloud.row)
+            return None
+        read_seconds[k] = time.perf_counter() - start
+        return (jobs[k], cloud, tuple(formats), stop_if_cancelled, fit)
+
+    def result(k: int, outcome: FitOutcome) -> None:
+        outcome.row.seconds = (outcome.row.seconds or 0.0) + read_seconds.pop(k, 0.0)
+        done(k, finish(outcome))
+
+    def lost(k: int, how: str) -> None:
+        done(k, worker_lost_row(str(jobs[k].path), how))
+
+    def failed(k: int, message: str, trace: str) -> None:
+        done(k, Row(str(jobs[k].path), status=INTERNAL, message=message, detail=trace))
+
+    cluster_run(fit_cloud, todo, prepare, scheduler, result, lost, failed)

@@ -52,14 +52,19 @@ def expand_inputs(args: Iterable[str | os.PathLike]) -> list[Path | Row]:
     for arg in args:
         text = os.fspath(arg)
         path = Path(text)
-        if path.is_dir():
+        try:
+            is_dir, exists = path.is_dir(), path.exists()
+        except OSError:  # a name too long, a symlink loop: the reader says so
+            add(path)
+            continue
+        if is_dir:
             found = sorted(p for p in path.iterdir() if p.is_file() and _is_cloud(p))
             if not found:
                 items.append(Row(text, status=BAD_INPUT,
                                  message=f"{text}: directory has no point cloud files ({kinds})"))
             for p in found:
                 add(p)
-        elif not path.exists() and glob.has_magic(text):
+        elif not exists and glob.has_magic(text):
             found = sorted(Path(p) for p in glob.glob(text, recursive=True))
             found = [p for p in found if p.is_file() and _is_cloud(p)]
             if not found:

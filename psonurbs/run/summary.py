@@ -1,9 +1,10 @@
 """What happened to each cloud of a run: statuses, exit codes, the summary files.
 
 Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0),
-``gate-exceeded`` (3), ``bad-input`` (2), ``internal-error`` (1); interrupted runs
-exit with 130 (Ctrl-C) or 143 (SIGTERM). When several apply the most severe wins:
-143 > 130 > 1 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
+``gate-exceeded`` (3), ``bad-input`` (2), ``worker-lost`` (4: the process fitting the
+cloud died, e.g. killed for memory; :func:`worker_lost_row`), ``internal-error`` (1);
+interrupted runs exit with 130 (Ctrl-C) or 143 (SIGTERM). When several apply the most
+severe wins: 143 > 130 > 1 > 4 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
 ``summary.json`` atomically, one row per cloud in the order given.
 """
 from __future__ import annotations
@@ -21,15 +22,16 @@ from .gate import Gate
 
 __all__ = [
     "Row", "exit_code", "write_summary", "render_summary_csv", "render_summary_json",
-    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "GATE", "BAD_INPUT", "INTERNAL",
-    "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_INTERRUPTED", "EXIT_TERMINATED",
-    "Terminated", "raise_terminated",
+    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "GATE", "BAD_INPUT", "INTERNAL", "WORKER_LOST", "STATUSES",
+    "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_WORKER_LOST", "EXIT_INTERRUPTED",
+    "EXIT_TERMINATED", "Terminated", "raise_terminated", "worker_lost_row",
 ]
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_INPUT = 2
 EXIT_GATE = 3
+EXIT_WORKER_LOST = 4  # the process fitting a cloud died (killed, out of memory): not the input's fault
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143  # 128 + SIGTERM, as a shell reports a process ended by it
 
@@ -45,8 +47,13 @@ def raise_terminated(signum, frame) -> None:
 
 
 OK, GATE, BAD_INPUT, INTERNAL = "ok", "gate-exceeded", "bad-input", "internal-error"
-_STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, INTERNAL: EXIT_INTERNAL}
-_SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
+WORKER_LOST = "worker-lost"
+STATUSES = (OK, GATE, BAD_INPUT, WORKER_LOST, INTERNAL)
+_STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, WORKER_LOST: EXIT_WORKER_LOST,
+                INTERNAL: EXIT_INTERNAL}
+# a lost worker is worse than an unusable file (the cloud may be fine and was not fitted:
+# the machine needs attention) and not as bad as a bug (a retry with more memory may pass)
+_SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_WORKER_LOST, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
 
 SUMMARY_COLUMNS = ["file", "points", "topology", "net", "rmse", "max_error", "rmse_relative",
                    "max_error_relative", "seconds", "status", "message"]
@@ -78,8 +85,18 @@ class Row:
                 for k in SUMMARY_COLUMNS}
 
 
+def worker_lost_row(file: str, how: str) -> Row:
+    """The row of a cloud whose worker died before it answered, for any back end that runs
+    fits in other processes (``how``: 'was killed by SIGKILL', 'was lost twice')."""
+    hint = ("SIGKILL is what the kernel's out-of-memory killer sends; " if "SIGKILL" in how else "")
+    return Row(file, status=WORKER_LOST,
+               message=f"{file}: the worker process fitting it {how}; not fitted ({hint}the fit may need more "
+                       "memory than was free: retry it with fewer --jobs, a smaller net_size or tessellation, or on a machine "
+                       "with more memory)")
+
+
 def exit_code(rows: Iterable[Row]) -> int:
-    """The most severe status: internal error 1 > bad input 2 > gate exceeded 3 > ok 0."""
+    """The most severe status: internal error 1 > worker lost 4 > bad input 2 > gate exceeded 3 > ok 0."""
     codes = [_STATUS_EXIT[r.status] for r in rows]
     return max(codes, key=_SEVERITY.index, default=EXIT_OK)
 
@@ -89,7 +106,16 @@ def _cell(value) -> str:
         return ""
     if isinstance(value, float):
         return repr(value)
-    return str(value)
+    return printable(str(value))
+
+
+def printable(text: str) -> str:
+    """``text`` encodable as UTF-8: the undecodable bytes of a file name (surrogates) as ``\\xff``."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def render_summary_csv(rows: Sequence[Row]) -> str:
@@ -113,7 +139,7 @@ def render_summary_json(rows: Sequence[Row], gate: Gate = Gate()) -> str:
         if d["seconds"] is not None:
             d["seconds"] = round(d["seconds"], 3)
         clouds.append(d)
-    counts = {s: sum(r.status == s for r in rows) for s in (OK, GATE, BAD_INPUT, INTERNAL)}
+    counts = {s: sum(r.status == s for r in rows) for s in STATUSES}
     document = {"psonurbs_version": psonurbs.__version__, "exit_code": exit_code(rows),
                 "counts": counts, "gate": gate.as_dict(), "clouds": clouds}
     return json.dumps(document, indent=2, allow_nan=False) + "\n"

@@ -1,0 +1,232 @@
+"""The repository's own benchmark: the case generator and the independent scorer.
+
+The scorer (benchmarks/score.py) is checked against answers known exactly: points at
+known distances from a surface, a surface against itself, a seam, a trimmed surface, and
+its mesh distance against a search over every triangle. Where the outside scorer
+(../shared/bench/score.py, beside a checkout of the team's workspace) is there, both must
+give the same figures on a real fit (to the outside one's float32 / tessellation noise);
+without it that check is skipped.
+"""
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SAMPLES, closed_u_surface, open_surface, run
+
+from psonurbs.formats.outputs import render_ply
+
+REPO = Path(__file__).resolve().parents[1]
+OUTSIDE = REPO.parent / "shared" / "bench"
+RES = 121  # the scorer's sample grid in the unit tests (its default, 301, for the benchmark)
+
+
+def load(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+cases = load("bench_cases", REPO / "benchmarks" / "cases.py")
+scorer = load("bench_score", REPO / "benchmarks" / "score.py")
+
+
+# ---- the generator ------------------------------------------------------------------------
+
+def test_the_generator_makes_the_sample_clouds():
+    samples = sorted(SAMPLES.glob("*.ply"))
+    assert len(samples) == 5
+    for path in samples:
+        assert cases.ply(cases.CASES[path.stem].points(0)) == path.read_bytes(), path.name
+        assert cases.CASES[path.stem].yaml() == path.with_suffix(".yaml").read_text(), path.name
+
+
+def test_the_generator_writes_cases_with_their_truth(tmp_path):
+    assert cases.main([str(tmp_path), "--only", "plate_holes", "cylinder"]) == 0
+    truth = np.load(tmp_path / "plate_holes.gt.npz")
+    assert float(truth["noise"]) == 0.0005 and float(truth["outliers"]) == 0.0
+    # the footprint's truth: every vertex used, none outside the ellipse
+    assert len(np.unique(truth["triangles"])) == len(truth["vertices"])
+    x, y = truth["vertices"][:, 0], truth["vertices"][:, 1]
+    assert np.all(((x / 2 + 0.5 - 0.5) / 0.48) ** 2 + ((y / 2 + 0.5 - 0.5) / 0.36) ** 2 < 1.0)
+    points = scorer.read_points(tmp_path / "cylinder.ply")
+    assert points.shape == (4000, 3)
+    assert np.allclose(np.hypot(points[:, 0], points[:, 1]), 0.8, atol=0.02)  # radius 0.8, noise 0.1% of 3.4
+    assert cases.CASES["cylinder"].points(1).tobytes() != points.tobytes()  # another seed, another draw
+
+
+@pytest.mark.skipif(not (OUTSIDE / "cases.py").exists(), reason="no outside benchmark beside the repository")
+def test_the_generator_makes_the_outside_cases():
+    outside = load("outside_cases", OUTSIDE / "cases.py")
+    assert sorted(outside.CASES) == sorted(cases.CASES)
+    for name, case in cases.CASES.items():
+        assert np.array_equal(case.points(0), outside.make_points(outside.CASES[name], 0)), name
+        vertices, triangles = outside.gt_mesh(outside.CASES[name])
+        mine = case.truth()
+        assert np.array_equal(mine[0], vertices) and np.array_equal(mine[1], triangles), name
+
+
+# ---- the scorer against known answers ---------------------------------------------------------
+
+def normals(surface, u, v):
+    from conftest import reference_points
+
+    su, sv = reference_points(surface, u, v, (1, 0)), reference_points(surface, u, v, (0, 1))
+    n = np.cross(su, sv)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def write_fit(out: Path, surface, points: np.ndarray, stem: str = "scan", trim=None,
+              curve=(0.3, 0.2, 0.2, 0.1), topology: str = "open") -> Path:
+    """A fit's files as psonurbs writes them (JSON, mesh, error curve) and the cloud."""
+    out.mkdir(parents=True, exist_ok=True)
+    doc = surface.to_dict()
+    if trim is not None:
+        doc["trim"] = trim
+    (out / f"{stem}.json").write_text(json.dumps({"topology": topology, "surface": doc,
+                                                  "metrics": {"rmse": 0.125}}))
+    vertices, triangles = surface.tessellate(101, 101)
+    (out / f"{stem}.ply").write_bytes(render_ply(vertices, triangles))
+    (out / f"{stem}_error.csv").write_text("iteration,best_rmse,mean_rmse\n" +
+                                           "".join(f"{k},{b},{b + 1}\n" for k, b in enumerate(curve)))
+    cloud = out / f"{stem}_cloud.ply"
+    cloud.write_bytes(cases.ply(points))
+    return cloud
+
+
+def offset_cloud(surface, n=400, seed=0, box=(0.05, 0.95)):
+    rng = np.random.default_rng(seed)
+    lo, hi = box
+    u = surface.knots_u[surface.degree_u] + (lo + (hi - lo) * rng.random(n)) * np.ptp(surface.knots_u)
+    v = surface.knots_v[surface.degree_v] + (lo + (hi - lo) * rng.random(n)) * np.ptp(surface.knots_v)
+    from conftest import reference_points
+
+    offsets = rng.uniform(-2.0, 2.0, n)  # 2 units off a 250-unit patch: the foot point is the base point
+    return reference_points(surface, u, v) + offsets[:, None] * normals(surface, u, v), offsets
+
+
+def test_scorer_measures_known_distances_exactly(tmp_path):
+    surface = open_surface()
+    points, offsets = offset_cloud(surface)
+    cloud = write_fit(tmp_path, surface, points)
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=RES)
+    diag = np.linalg.norm(np.ptp(points, axis=0))
+    assert figures["rmse"] == pytest.approx(np.sqrt(np.mean(offsets ** 2)) / diag, rel=1e-9)
+    assert figures["max"] == pytest.approx(np.abs(offsets).max() / diag, rel=1e-9)
+    assert figures["claimed_rmse"] == pytest.approx(0.125 / diag)
+    assert 0 < figures["mesh_vs_nurbs"] < 1e-3  # the 101 x 101 mesh's chords, nothing more
+    assert figures["curve_ok"] is True and figures["trimmed"] is False
+    assert "seam_u" not in figures and "pole_spread" not in figures
+
+
+def test_scorer_truth_of_a_surface_against_itself(tmp_path):
+    surface = open_surface()
+    points, _ = offset_cloud(surface)
+    cloud = write_fit(tmp_path, surface, points)
+    vertices, triangles = surface.tessellate(241, 241)
+    np.savez(tmp_path / "truth.npz", vertices=vertices, triangles=triangles, noise=0.0, outliers=0.0)
+    figures = scorer.score(cloud, tmp_path, tmp_path / "truth.npz", stem="scan", res=RES)
+    assert figures["cover_max"] < 1e-12  # the truth's vertices lie on the surface
+    assert figures["truth_max"] < 2e-4 and figures["truth_rms"] < 5e-5  # chords of the truth only
+
+
+def test_scorer_seam_and_rising_curve(tmp_path):
+    surface = closed_u_surface()
+    u = np.linspace(surface.knots_u[surface.degree_u], surface.knots_u[-surface.degree_u - 1], 50)
+    from conftest import reference_points
+
+    points = reference_points(surface, np.tile(u, 4), np.repeat(np.linspace(0, 1, 4), 50))
+    cloud = write_fit(tmp_path, surface, points, curve=(0.3, 0.2, 0.25))
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=RES)
+    assert figures["seam_u"] < 1e-12
+    assert figures["rmse"] < 1e-12
+    assert figures["curve_ok"] is False  # the best column rose
+
+
+def square_loop(lo: float, hi: float, clockwise: bool = False) -> dict:
+    corners = [[lo, lo], [hi, lo], [hi, hi], [lo, hi], [lo, lo]]
+    if clockwise:
+        corners = corners[::-1]
+    return {"degree": 1, "knots": [0.0, 0.0, 0.25, 0.5, 0.75, 1.0, 1.0], "control_points": corners}
+
+
+def test_scorer_reads_trimmed_surfaces(tmp_path):
+    surface = open_surface()
+    inner, _ = offset_cloud(surface, n=3000, box=(0.3, 0.7))  # data only in the middle of the domain
+    untrimmed = scorer.score(write_fit(tmp_path / "a", surface, inner), tmp_path / "a", stem="scan", res=RES)
+    trim = [square_loop(0.3, 0.7), square_loop(0.45, 0.55, clockwise=True)]  # with a hole in it
+    trimmed = scorer.score(write_fit(tmp_path / "b", surface, inner, trim=trim), tmp_path / "b", stem="scan", res=RES)
+    assert trimmed["trimmed"] is True
+    assert untrimmed["overhang"] > 0.5 and trimmed["overhang"] < 0.02
+    # a point over the hole is as far from the trimmed surface as from the hole's rim
+    s = scorer.Surface(json.loads((tmp_path / "b" / "scan.json").read_text())["surface"])
+    above_hole = s.at(np.array([0.5]), np.array([0.5]))
+    side, edge = np.linspace(0.45, 0.55, 401), np.full(401, 0.45)
+    rim = np.concatenate([s.at(side, edge), s.at(side, edge + 0.1), s.at(edge, side), s.at(edge + 0.1, side)])
+    d = scorer.SurfaceDistance(s)(above_hole)[0]
+    assert d == pytest.approx(np.linalg.norm(rim - above_hole, axis=1).min(), rel=1e-3)
+    assert scorer.SurfaceDistance(s, trimmed=False)(above_hole)[0] < 1e-9
+
+
+@pytest.mark.parametrize("collapsed", [False, True], ids=["patch", "collapsed-row"])
+def test_mesh_distance_is_the_least_over_every_triangle(collapsed):
+    vertices, triangles = open_surface().tessellate(31, 25)
+    if collapsed:  # the first row at one point, as a sphere's pole: 25 copies of a vertex
+        vertices[:25] = vertices[:25].mean(0)
+    rng = np.random.default_rng(2)
+    centre, size = vertices.mean(0), np.ptp(vertices, axis=0)
+    probes = centre + (rng.random((300, 3)) - 0.5) * size * 1.4  # near and far, inside and beyond
+    exhaustive = scorer.point_triangle_distance(probes[:, None, :], *(vertices[triangles][None, :, i]
+                                                                      for i in range(3))).min(axis=1)
+    assert np.allclose(scorer.MeshDistance(vertices, triangles)(probes), exhaustive, rtol=1e-12, atol=0)
+
+
+def test_point_triangle_distance_in_each_region():
+    a, b, c = np.zeros(3), np.array([2.0, 0, 0]), np.array([0, 2.0, 0])
+    probes = np.array([[0.5, 0.5, 3.0], [-1.0, -1.0, 0.0], [1.0, -2.0, 0.0], [2.0, 2.0, 0.0], [3.0, 0.0, 4.0]])
+    expected = [3.0, np.sqrt(2.0), 2.0, np.sqrt(2.0), np.hypot(1.0, 4.0)]
+    got = scorer.point_triangle_distance(probes, *(np.broadcast_to(x, probes.shape) for x in (a, b, c)))
+    assert np.allclose(got, expected, rtol=1e-14)
+
+
+# ---- the outside scorer, where it is ------------------------------------------------------------
+
+@pytest.mark.skipif(not (OUTSIDE / "score.py").exists(), reason="no outside scorer beside the repository")
+def test_both_scorers_agree_on_a_fit(tmp_path):
+    pytest.importorskip("open3d")
+    assert cases.main([str(tmp_path / "cases"), "--only", "quarter_cylinder"]) == 0
+    cloud, truth = tmp_path / "cases" / "quarter_cylinder.ply", tmp_path / "cases" / "quarter_cylinder.gt.npz"
+    out = tmp_path / "fit"
+    result = run("fit", cloud, "-c", cloud.with_suffix(".yaml"), "-o", out, "--particles", "1", "--iterations", "1",
+                 "-q")
+    assert result.exit_code == 0, result.stderr
+    doc = json.loads((out / "quarter_cylinder.json").read_text())
+    lo_u, hi_u = doc["surface"]["knots_u"][2], doc["surface"]["knots_u"][-3]
+    lo_v, hi_v = doc["surface"]["knots_v"][1], doc["surface"]["knots_v"][-2]
+    trimmed_out = tmp_path / "trimmed"
+    trimmed_out.mkdir()
+    for name in ("quarter_cylinder.ply", "quarter_cylinder_error.csv"):
+        (trimmed_out / name).write_bytes((out / name).read_bytes())
+    u0, u1 = lo_u + 0.2 * (hi_u - lo_u), lo_u + 0.8 * (hi_u - lo_u)
+    v0, v1 = lo_v + 0.1 * (hi_v - lo_v), lo_v + 0.9 * (hi_v - lo_v)
+    doc["surface"]["trim"] = [{"degree": 1, "knots": [0, 0, 0.25, 0.5, 0.75, 1, 1],
+                               "control_points": [[u0, v0], [u1, v0], [u1, v1], [u0, v1], [u0, v0]]}]
+    (trimmed_out / "quarter_cylinder.json").write_text(json.dumps(doc))
+    for directory in (out, trimmed_out):
+        outside = subprocess.run([sys.executable, str(OUTSIDE / "score.py"), str(cloud), str(directory), "--gt",
+                                  str(truth)], capture_output=True, text=True, timeout=300)
+        theirs = json.loads(outside.stdout.strip().splitlines()[-1])
+        ours = scorer.score(cloud, directory, truth)
+        assert theirs["trimmed"] == ours["trimmed"] == (directory == trimmed_out)
+        floor = 2e-6  # the outside scorer's: float32 distances on a 301 x 301 mesh
+        for key in ("rmse", "p99", "max", "truth_rms", "truth_max", "cover_rms", "cover_max", "mesh_vs_nurbs"):
+            assert abs(ours[key] - theirs[key]) <= 0.02 * theirs[key] + floor, (directory.name, key, ours, theirs)
+        assert ours["overhang"] == pytest.approx(theirs["overhang"], abs=1e-3)
+        assert ours["claimed_rmse"] == theirs["claimed_rmse"] and ours["curve_ok"] == theirs["curve_ok"]
