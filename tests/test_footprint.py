@@ -100,3 +100,18 @@ def test_anisotropic_domain_uses_the_surface_metric():
     uv = sample(region, 6000, seed=9)
     face = fit_footprint(uv, surface=surface)
     assert face.loops == 2
+
+
+def ragged_outline(u, v):
+    """A star-like outline (radius with three harmonics), no holes."""
+    a = np.arctan2(v - 0.5, u - 0.5)
+    r = 0.36 + 0.05 * np.sin(5 * a + 0.3) + 0.03 * np.sin(11 * a + 1.1) + 0.015 * np.sin(23 * a + 2.0)
+    return np.hypot(u - 0.5, v - 0.5) < r
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_sampling_gaps_of_a_random_sample_are_not_holes(seed):
+    # these two samples leave a sliver triangle wider than the alpha scale inside the
+    # outline (each gave a spurious hole loop before small holes were covered)
+    face = fit_footprint(sample(ragged_outline, 1500, seed=seed))
+    assert face.trim is not None and face.loops == 1 and face.points_outside == 0

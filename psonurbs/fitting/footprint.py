@@ -14,9 +14,10 @@ From the points' final parameters (their foot points on the fitted surface):
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
-5. **Loops.** The piece is rasterised, its distance field contoured at a margin of one
-   median spacing outside it (:func:`psonurbs.geometry.contour.contours`), and each
-   contour fitted by a closed cubic B-spline with the fewest control points (doubling)
+5. **Loops.** The piece is rasterised, its distance field contoured at a margin of a
+   quarter median spacing outside it (:func:`psonurbs.geometry.contour.contours`; a hole
+   of less area than a disc of radius ``ALPHA`` median spacings is a sampling gap and is
+   covered), and each contour fitted by a closed cubic B-spline with the fewest control points (doubling)
    that keeps within half the margin of it, inside the domain, every loop simple
    and apart from the others, and the piece's points inside the face.
 
@@ -209,7 +210,10 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     outer = int(np.argmax([signed_area(p) for p in polygons]))
-    holes = [p for k, p in enumerate(polygons) if k != outer and signed_area(p) < 0]
+    # a hole smaller than a disc of the alpha scale is a sampling gap (a sliver of wide
+    # circumcircle in a random sample), not a gap in the data: the face covers it
+    smallest = np.pi * (ALPHA * float(np.median(spacing))) ** 2
+    holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
     return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
                     int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
 
