@@ -49,6 +49,7 @@ from .robust import (
     refreshed_weights,
     trusted_points,
 )
+from .sampling import big_cloud_sample, finished
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
 from .validation import held_out_choice
@@ -203,19 +204,31 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
+        # a big cloud is fitted on a subsample holding the swarm's points, then finished on all
+        big = big_cloud_sample(len(cloud), sample) if config.strategy == "hybrid" else None
+        fitted, fitted_sample = (cloud, sample) if big is None else (
+            Cloud(cloud.points[big], cloud.frame, cloud.duplicates), np.searchsorted(big, sample))
         scores = None
         trusted = trusted_points(cloud.neighbourhoods, len(cloud))  # they alone steer the parametrisation
-        points_t, sample_t = cloud.points[trusted], kept_sample(sample, trusted)
+        if big is not None:  # (its robust loss weighs by the plain scale: the neighbourhoods are the cloud's)
+            trusted = trusted[big]
+        points_t, sample_t = fitted.points[trusted], kept_sample(fitted_sample, trusted)
         if config.topology == "auto":
             topology, par, scores = choose_topology(points_t, sample_t, config)
         else:
             topology = config.topology
             par = parametrise_for(points_t, sample_t, topology, config)
-        par = Parametrisation(parameters_for_all(cloud.points, trusted, par.uv), par.info)
+        par = Parametrisation(parameters_for_all(fitted.points, trusted, par.uv), par.info)
         layout = layout_for(topology, config.net_size, config.degrees)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         run = run_full if config.strategy == "full" else run_hybrid
-        surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
+        surface, swarm, info = run(fitted, layout, par, fitted_sample, config, rng, progress)
+        if big is not None:
+            done = finished(layout, surface, cloud.points, info["smoothing"], config.robust,
+                            info["refined"] and any(layout.bounded), cloud.neighbourhoods)
+            surface, info["subsample"] = done.surface, {"points": int(len(big)), "final_rounds": done.rounds}
+            if done.point_weights is not None:
+                info["robust"] = {"loss": loss_summary(done.point_weights)}
         _, dist = closest_parameters(surface, cloud.frame.to_local(points))
         checks = check_fit(surface, cloud.points)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
@@ -257,6 +270,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
                      "rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
+    if "subsample" in info:
+        notes.append(f"fitted on {info['subsample']['points']} of the {len(cloud)} points, "
+                     f"then {info['subsample']['final_rounds']} rounds of parameter correction on all")
     if scores is not None:
         info["topology_scores"] = scores
         notes.append(f"topology auto: {topology} (" + ", ".join(
