@@ -42,7 +42,7 @@ def random_config(rng: np.random.Generator) -> dict:
             "weight_bounds": [float(rng.choice([0.2, 1e-6, 0.9, 1.0])), float(rng.choice([5.0, 1.0, 1e6, 1.1]))],
             "min_knot_gap": float(rng.choice([1e-9, 0.2, 0.999])),
             "cross_validation": bool(rng.integers(2)), "refine": bool(rng.integers(2)),
-            "remove_outliers": bool(rng.integers(2)), "robust": bool(rng.integers(2))}
+            "robust": bool(rng.integers(2))}
 
 
 def random_cloud(rng: np.random.Generator) -> np.ndarray:

@@ -4,11 +4,16 @@
     python benchmarks/run_cases.py                    # every case, swarm and classical
     python benchmarks/run_cases.py --cases franke_grid wave_graded --variants swarm
     python benchmarks/run_cases.py --cases torus --seed 3   # a fresh draw of a case
+    python benchmarks/run_cases.py --variants swarm --baseline /path/to/other/bin/psonurbs
 
 The cases come from ``benchmarks/cases.py`` and the figures from ``benchmarks/score.py``
 (which re-evaluates the JSON with scipy, nothing of psonurbs). Each case is fitted with
 its own YAML by the installed ``psonurbs`` command, timed (wall clock, whole command),
 then scored; figures are relative to the cloud's bounding-box diagonal.
+
+With ``--baseline EXE`` every case and variant is also fitted by that other build
+(say, a snapshot of main), right before this one: rows ``main`` and ``this`` alternate,
+so both see the same machine load.
 
 Variants:
   swarm      the case's config as it is (strategy hybrid: knots and weights by the swarm)
@@ -32,13 +37,13 @@ from score import score
 
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
-COLUMNS = ["topology", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread", "mesh_vs_nurbs",
-           "claim_err", "curve_ok"]
+COLUMNS = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread",
+           "mesh_vs_nurbs", "claim_err", "curve_ok", "suspect"]
 
 
-def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path) -> dict:
+def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path, exe: str = "psonurbs") -> dict:
     out = out_root / variant / case
-    cmd = ["psonurbs", "fit", str(cases_dir / f"{case}.ply"), "--config", str(cases_dir / f"{case}.yaml"),
+    cmd = [exe, "fit", str(cases_dir / f"{case}.ply"), "--config", str(cases_dir / f"{case}.yaml"),
            "--out", str(out), "--quiet", *VARIANT_ARGS[variant]]
     start = time.perf_counter()
     run = subprocess.run(cmd, capture_output=True, text=True)
@@ -46,7 +51,10 @@ def fit_and_score(case: str, variant: str, cases_dir: Path, out_root: Path) -> d
     if run.returncode != 0:
         return {"error": (run.stderr or run.stdout).strip().splitlines()[-1], "seconds": seconds}
     result = score(cases_dir / f"{case}.ply", out, cases_dir / f"{case}.gt.npz")
-    result["topology"] = json.loads((out / f"{case}.json").read_text())["topology"]
+    doc = json.loads((out / f"{case}.json").read_text())
+    result["topology"] = doc["topology"]
+    result["param"] = doc["fit"].get("parametrisation", {}).get("method")
+    result["suspect"] = {True: "SUSPECT", False: "no"}.get(doc["metrics"].get("suspect"))  # None: not checked
     seams = [result[k] for k in ("seam_u", "seam_v") if k in result]
     result["seam"] = max(seams) if seams else None
     if result.get("claimed_rmse") and result.get("rmse"):
@@ -70,23 +78,29 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="cloud seed: 0 the public clouds, others fresh draws")
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"], choices=list(VARIANT_ARGS))
     ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
+    ap.add_argument("--baseline", metavar="EXE", help="another psonurbs executable to fit every case with too")
     args = ap.parse_args(argv)
+    builds = ([("main", args.baseline)] if args.baseline else []) + [("this", "psonurbs")]
     root = args.out or Path(tempfile.mkdtemp(prefix="psonurbs-bench-"))
     cases_dir = root / "cases"
     cases_dir.mkdir(parents=True, exist_ok=True)
     for case in args.cases:
         write(CASES[case], cases_dir, args.seed)
-    header = ["case", "variant", *COLUMNS, "noise", "seconds"]
+    header = ["case", "variant", *(["build"] if args.baseline else []), *COLUMNS, "noise", "seconds"]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
     for case in args.cases:
         for variant in args.variants:
-            r = fit_and_score(case, variant, cases_dir, root / "results")
-            if "error" in r:
-                print(f"| {case} | {variant} | failed: {r['error']} |" + " |" * (len(header) - 3), flush=True)
-                continue
-            row = [case, variant, *(cell(r.get(c)) for c in COLUMNS), cell(r.get("noise")), f"{r['seconds']:.1f}"]
-            print("| " + " | ".join(row) + " |", flush=True)
+            for build, exe in builds:
+                label = [build] if args.baseline else []
+                r = fit_and_score(case, variant, cases_dir, root / "results" / build, exe)
+                if "error" in r:
+                    print(f"| {case} | {variant} | " + " | ".join(label + [f"failed: {r['error']}"]) + " |"
+                          + " |" * (len(header) - 3 - len(label)), flush=True)
+                    continue
+                row = [case, variant, *label, *(cell(r.get(c)) for c in COLUMNS), cell(r.get("noise")),
+                       f"{r['seconds']:.1f}"]
+                print("| " + " | ".join(row) + " |", flush=True)
     print(f"\nclouds and results in {root}")
     return 0
 

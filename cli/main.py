@@ -6,7 +6,7 @@ live here. Exit codes (also in ``psonurbs fit --help``):
     0    every cloud was fitted (and passed the gate)
     1    internal error (a bug in psonurbs)
     2    unusable input or config (usage errors too)
-    3    a fit is above --max-rmse / --max-rmse-rel
+    3    a fit is above --max-rmse / --max-rmse-rel (or suspect, with --fail-suspect)
     4    a worker process died or was lost while fitting a cloud (killed, out of memory)
     130  interrupted (Ctrl-C)
     143  terminated (SIGTERM)
@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 
 import psonurbs
-from psonurbs.config import STRATEGIES, TOPOLOGIES, load_config
+from psonurbs.config import PARAMETRISATIONS, STRATEGIES, TOPOLOGIES, load_config
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
 from psonurbs.run.batch import preflight, run_batch
@@ -182,6 +182,9 @@ def cli() -> None:
               help="Override topology.")
 @click.option("--strategy", type=click.Choice(STRATEGIES), default=None,
               help="Override strategy.")
+@click.option("--parametrisation", type=click.Choice(PARAMETRISATIONS), default=None,
+              help="Override parametrisation (first parameters of an open patch: plane, "
+                   "intrinsic, or auto: the plane where the cloud is a height field over it).")
 @jobs_option("Fit clouds in N worker processes (one BLAS thread each); the files are identical "
              "to --jobs 1.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
@@ -194,12 +197,16 @@ def cli() -> None:
                    "obj-nurbs (a 'cstype rat bspline' block in STEM.obj, with trim/hole), step "
                    "(STEP AP214 face, STEM.step; needs cadquery-ocp). Repeatable.")
 @gate_options("a fit's")
+@click.option("--fail-suspect", is_flag=True,
+              help="Gate: exit 3 if a fit fails a self-check (surface or net far outside the "
+                   "cloud's box, a fold, surface far from every point).")
 @quiet_option
 @click.pass_context
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
-        topology: str | None, strategy: str | None, jobs: int, scheduler: str | None,
-        formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None, quiet: bool) -> None:
+        topology: str | None, strategy: str | None, parametrisation: str | None, jobs: int,
+        scheduler: str | None, formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None,
+        fail_suspect: bool, quiet: bool) -> None:
     """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
 
     A CLOUD may be a file, a directory (its cloud files) or a quoted glob
@@ -217,7 +224,9 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     and for the run, summary.csv and summary.json: one row per cloud (file,
     points, topology, net, rmse, max_error, relative figures, seconds, status,
     message). A cloud that cannot be used is reported on stderr and in the
-    summary, and the others are still fitted. The same inputs give
+    summary, and the others are still fitted. A fit that fails a self-check
+    (no ground truth needed) is written, warned about on stderr and marked
+    'suspect' in the summary. The same inputs give
     byte-identical outputs (3dm files aside: openNURBS stamps them).
 
     Examples:
@@ -238,8 +247,9 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       1    internal error (a bug in psonurbs)
       2    unusable input or config (with several clouds: at least one
            could not be used; the others were still fitted)
-      3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel
-           (its files are written; the others are still fitted)
+      3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel,
+           or it is suspect with --fail-suspect (its files are written;
+           the others are still fitted)
       4    a worker process died while fitting a cloud (with --jobs N:
            killed, out of memory; with --scheduler: lost twice); the
            others are still fitted
@@ -250,9 +260,9 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     """
     try:
         code = _fit_all(clouds, config_path, out_dir, quiet, jobs, scheduler, formats,
-                        Gate(max_rmse, max_rmse_rel), _fitter(ctx),
+                        Gate(max_rmse, max_rmse_rel, fail_suspect), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
-                             topology=topology, strategy=strategy))
+                             topology=topology, strategy=strategy, parametrisation=parametrisation))
     except KeyboardInterrupt as stop:
         code = _stopped(stop)
     except Exception as e:  # a bug outside a cloud's fit
@@ -354,6 +364,8 @@ def _report(row: Row) -> None:
     line = (f"{name}: {row.points} points, net {row.net} ({row.topology}), "
             f"rmse {row.rmse:.2e}, max {row.max_error:.2e}, {row.seconds:.1f} s")
     click.echo("; ".join([line, *row.notes]))
+    for warning in row.warnings:
+        click.echo(f"psonurbs: warning: {one_line(row.file)}: suspect fit: {warning}", err=True)
     if row.status == "gate-exceeded":
         gate_reason = row.message.split("; ")[0]
         click.echo(f"psonurbs: gate exceeded: {one_line(row.file)}: {gate_reason}", err=True)

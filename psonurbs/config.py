@@ -38,12 +38,14 @@ from psonurbs.errors import ConfigError, existing_file
 
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
+PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
 
 __all__ = [
     "SwarmConfig",
     "FitConfig",
     "TOPOLOGIES",
     "STRATEGIES",
+    "PARAMETRISATIONS",
     "load_config",
     "config_from_dict",
     "BOUNDS",
@@ -229,9 +231,13 @@ class FitConfig:
         or by the plain fit error on the points they were fitted to (false).
     refine: after the polish, refine control points, weights and parameters jointly
         (Levenberg-Marquardt), then polish again.
-    remove_outliers: drop statistical outliers (by neighbour distances) before fitting.
-    robust: leave out of the fit the points more than 10 robust standard deviations off
-        it (gross outliers, :mod:`psonurbs.fitting.robust`); the metrics still count them.
+    robust: gross outliers judged locally before the fit (far from the surface their
+        neighbours describe, :mod:`psonurbs.fitting.outliers`) and a robust loss in every
+        solve (:mod:`psonurbs.fitting.robust`); the metrics still count every point. The
+        YAML key ``remove_outliers`` is an alias.
+    parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
+        (the cloud's own graph laid flat, then corrected from a coarse net to the
+        configured one) or "auto" (the plane where the cloud is a height field over it).
     trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.footprint`):
         "auto" where the footprint leaves part of the domain empty, true always, false never.
     """
@@ -249,8 +255,8 @@ class FitConfig:
     min_knot_gap: float = 0.2
     cross_validation: bool = True
     refine: bool = True
-    remove_outliers: bool = False
     robust: bool = True
+    parametrisation: str = "auto"
     trim: str | bool = "auto"
 
     def __post_init__(self) -> None:
@@ -273,6 +279,7 @@ class FitConfig:
         if self.topology == "sphere" and self.net_size[1] < 3:
             raise ConfigError(f"config key 'net_size': a sphere needs at least 3 control points along v "
                               f"(the first and last collapse to the poles), got {self.net_size[1]}")
+        put("parametrisation", _choice("parametrisation", self.parametrisation, PARAMETRISATIONS))
         put("strategy", _choice("strategy", self.strategy, STRATEGIES))
         swarm = self.swarm
         if swarm is None:
@@ -305,7 +312,7 @@ class FitConfig:
         put("weight_bounds", (lo, hi))
         put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
                                    what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
-        for name in ("cross_validation", "refine", "remove_outliers", "robust"):
+        for name in ("cross_validation", "refine", "robust"):
             if not isinstance(getattr(self, name), bool):
                 raise _fail(name, "true or false", getattr(self, name))
         if not (isinstance(self.trim, bool) or self.trim == "auto"):
@@ -350,6 +357,7 @@ class FitConfig:
 
 
 _TOP_KEYS = tuple(f.name for f in dataclasses.fields(FitConfig))
+ALIASES = {"remove_outliers": "robust"}  # an older name: the key it stands for
 _SWARM_KEYS = tuple(f.name for f in dataclasses.fields(SwarmConfig))
 
 
@@ -383,8 +391,17 @@ def config_from_dict(d: Mapping | None, source: str | None = None) -> FitConfig:
             d = {}
         if not isinstance(d, Mapping):
             raise ConfigError(f"the top level must be a mapping of config keys, got {_show(d)}")
-        _check_keys(d, _TOP_KEYS, "")
+        _check_keys(d, _TOP_KEYS + tuple(ALIASES), "")
         kwargs = dict(d)
+        for alias, key in ALIASES.items():
+            if alias in kwargs:
+                value = kwargs.pop(alias)
+                if not isinstance(value, bool):
+                    raise _fail(alias, "true or false", value)
+                if key in kwargs and kwargs[key] != value:
+                    raise ConfigError(f"config keys '{alias}' and '{key}' disagree ('{alias}' is another name "
+                                      f"for '{key}')")
+                kwargs[key] = value
         swarm = kwargs.get("swarm")
         if swarm is not None and not isinstance(swarm, Mapping):
             raise _fail("swarm", "a mapping", swarm)

@@ -172,6 +172,7 @@ class FakeResult:
     curve: np.ndarray = field(default_factory=lambda: np.array([[0, 0.2, 0.3], [1, 0.1, 0.25]]))
     info: dict = field(default_factory=lambda: {"strategy": "hybrid", "evaluations": 80})
     notes: list = field(default_factory=lambda: ["16 points for 4 control points"])
+    warnings: list = field(default_factory=list)
 
 
 @dataclass

@@ -96,9 +96,9 @@ def test_summary_rows_for_good_bad_and_gated_clouds(tmp_path, fake_fit):
     assert float(rows[1]["seconds"]) >= 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["exit_code"] == 2
-    assert summary["counts"] == {"ok": 0, "gate-exceeded": 1, "bad-input": 1, "worker-lost": 0,
+    assert summary["counts"] == {"ok": 0, "suspect": 0, "gate-exceeded": 1, "bad-input": 1, "worker-lost": 0,
                                  "internal-error": 0}
-    assert summary["gate"] == {"max_rmse": 1e-4, "max_rmse_rel": None}
+    assert summary["gate"] == {"max_rmse": 1e-4, "max_rmse_rel": None, "fail_suspect": False}
     assert [c["status"] for c in summary["clouds"]] == ["bad-input", "gate-exceeded"]
     assert summary["clouds"][1]["rmse"] == 1.234e-4
     assert not [p for p in out.iterdir() if ".tmp-" in p.name]
@@ -171,8 +171,10 @@ def test_jobs_2_writes_the_same_files_as_jobs_1(tmp_path):
         result = run("fit", clouds, "-o", out, "--particles", "6", "--iterations", "5", "-q",
                      "--jobs", jobs, "--format", "iges")
         assert result.exit_code == 2, result.stderr  # the broken cloud
-        assert result.stderr.splitlines() == [f"psonurbs: error: {clouds / 'broken.xyz'}: malformed "
-                                              "point data at line 2: 'not' is not a number"]
+        # 80 points on a 5 x 5 net after 5 iterations may fold (a self-check warning): not an error
+        errors = [line for line in result.stderr.splitlines() if not line.startswith("psonurbs: warning: ")]
+        assert errors == [f"psonurbs: error: {clouds / 'broken.xyz'}: malformed "
+                          "point data at line 2: 'not' is not a number"]
         outputs[jobs] = out
     names = sorted(p.name for p in outputs["1"].iterdir())
     assert names == sorted(p.name for p in outputs["2"].iterdir())
@@ -183,4 +185,5 @@ def test_jobs_2_writes_the_same_files_as_jobs_1(tmp_path):
     rows = [json.loads((outputs[j] / "summary.json").read_text())["clouds"] for j in ("1", "2")]
     strip = [[{k: v for k, v in r.items() if k != "seconds"} for r in rs] for rs in rows]
     assert strip[0] == strip[1]  # same rows, same (input) order
-    assert [r["status"] for r in rows[0]] == ["bad-input"] + ["ok"] * len(paths)
+    assert rows[0][0]["status"] == "bad-input"
+    assert all(r["status"] in ("ok", "suspect") for r in rows[0][1:])  # fitted and written

@@ -126,6 +126,16 @@ def test_bad_override_names_the_key(tmp_path, fake_fit):
     assert fake_fit.calls == []
 
 
+def test_parametrisation_override_reaches_the_fit_and_overrides_the_file(tmp_path, fake_fit):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("parametrisation: plane\n")
+    for args, expected in (([], "plane"), (["--parametrisation", "intrinsic"], "intrinsic")):
+        result = fake_fit.run("fit", SAMPLES / "seed_patch16.ply", "-c", cfg, "-o", tmp_path / "out", *args)
+        assert result.exit_code == 0, result.stderr
+        assert fake_fit.calls[-1][1].parametrisation == expected
+    assert json.loads((tmp_path / "out" / "seed_patch16.json").read_text())["config"]["parametrisation"] == "intrinsic"
+
+
 def test_bad_topology_choice(tmp_path):
     result = run("fit", SAMPLES / "seed_patch16.ply", "--topology", "klein", "-o", tmp_path)
     assert result.exit_code == 2

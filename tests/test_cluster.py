@@ -105,7 +105,8 @@ def assert_same_outputs(one: Path, other: Path) -> None:
     rows = [json.loads((d / "summary.json").read_text())["clouds"] for d in (one, other)]
     without_time = [[{k: v for k, v in r.items() if k != "seconds"} for r in rs] for rs in rows]
     assert without_time[0] == without_time[1]  # same rows in the input order
-    assert [r["status"] for r in rows[1]] == ["bad-input"] + ["ok"] * 6
+    assert rows[1][0]["status"] == "bad-input"
+    assert all(r["status"] in ("ok", "suspect") for r in rows[1][1:])  # fitted and written (a self-check may warn)
 
 
 def test_a_batch_on_a_scheduler_writes_the_files_of_jobs_1(tmp_path, cluster, reference):

@@ -38,7 +38,7 @@ def test_defaults_match_the_spec():
     assert (c.smoothing, c.swarm_points, c.polish_iterations) == (1e-6, 1500, 100)
     assert c.tessellation == (101, 101)
     assert c.weight_bounds == (0.2, 5.0)
-    assert (c.min_knot_gap, c.cross_validation, c.remove_outliers, c.robust) == (0.2, True, False, True)
+    assert (c.min_knot_gap, c.cross_validation, c.robust) == (0.2, True, True)
 
 
 def test_full_file_is_read_with_paper_names(tmp_path):
@@ -55,7 +55,7 @@ tessellation: [21, 31]
 weight_bounds: [0.5, 2]
 min_knot_gap: 0.1
 cross_validation: false
-remove_outliers: true
+robust: false
 """))
     assert c.orders == (4, 3) and c.degrees == (3, 2) and c.net_size == (10, 6)
     assert c.topology == "cylinder" and c.strategy == "full"
@@ -64,7 +64,15 @@ remove_outliers: true
     assert c.smoothing == 1e-3  # YAML 1.1 would read "1e-3" as a string
     assert (c.swarm_points, c.polish_iterations, c.tessellation) == (800, 0, (21, 31))
     assert c.weight_bounds == (0.5, 2.0) and c.min_knot_gap == 0.1 and c.cross_validation is False
-    assert c.remove_outliers is True
+    assert c.robust is False
+
+
+def test_remove_outliers_is_another_name_for_robust(tmp_path):
+    assert load_config(write(tmp_path, "remove_outliers: false\n")).robust is False
+    assert load_config(write(tmp_path, "remove_outliers: true\nrobust: true\n")).robust is True
+    assert "remove_outliers" not in load_config(write(tmp_path, "remove_outliers: true\n")).to_dict()
+    assert error_of(tmp_path, "remove_outliers: true\nrobust: false\n") == (
+        "cfg.yaml: config keys 'remove_outliers' and 'robust' disagree ('remove_outliers' is another name for 'robust')")
 
 
 def test_to_dict_has_yaml_shape_and_round_trips():
@@ -72,7 +80,7 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "remove_outliers", "robust",
+                       "min_knot_gap", "cross_validation", "refine", "robust", "parametrisation",
                        "trim"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
@@ -130,6 +138,8 @@ def test_every_sample_config_loads(path):
      "cfg.yaml: unknown config key 'swarm.partciles' (known: particles, iterations, inertia, "
      "c1, c2, seed); did you mean 'swarm.particles'?"),
     ("net_sise: [5, 5]\n", "cfg.yaml: unknown config key 'net_sise'"),
+    ("parametrisation: isomap\n",
+     "cfg.yaml: config key 'parametrisation': expected one of auto, plane, intrinsic, got 'isomap'"),
     ("swarm:\n  particles: -3\n",
      "cfg.yaml: config key 'swarm.particles': expected a positive integer, got -3"),
     ("swarm:\n  particles: true\n",

@@ -238,8 +238,8 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
 
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
     from psonurbs.fitting.hybrid import KnotWeightSearch
-    from psonurbs.fitting.pipeline import validated
     from psonurbs.fitting.solve import RegularisedLeastSquares
+    from psonurbs.fitting.validation import held_out_choice
 
     pts = franke(n=3000, seed=12, noise=0.01)
     layout = NetLayout((8, 8), (4, 4))
@@ -251,11 +251,69 @@ def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_w
     crowded = classical.copy()
     cu, _ = layout.inner_counts
     crowded[:cu] = np.linspace(0.05, 0.25, cu)  # knots crowded on one side, wide spans on the other
-    chosen, info = validated(search, crowded, layout, pts, uv, seen, 20)
-    assert info["kept"] == "classical" and np.array_equal(chosen, classical)
-    assert info["held_out_error"]["swarm"] > info["held_out_error"]["classical"]
-    assert info["held_out_points"] == 2000
+    chosen, test = held_out_choice(search, crowded, layout, pts, uv, seen, 20)
+    assert test.kept == "classical" and np.array_equal(chosen, classical)
+    assert test.first.z > 0 and test.first.swarm_error > test.first.classical_error
+    assert test.polished.points == test.first.points == 1000  # half of the 2000 unseen judge, half join the fit
     # the classical start itself, or no unseen point: nothing to judge, the best stands
     for best, points in ((classical, pts), (crowded, pts[:1000])):
-        chosen, info = validated(search, best, layout, points, uv, seen, 20)
-        assert np.array_equal(chosen, best) and info == {}
+        chosen, test = held_out_choice(search, best, layout, points, uv, seen, 20)
+        assert np.array_equal(chosen, best) and test is None
+
+
+def test_validation_keeps_knots_placed_at_a_steep_step():
+    from psonurbs.fitting.hybrid import KnotWeightSearch
+    from psonurbs.fitting.solve import RegularisedLeastSquares
+    from psonurbs.fitting.validation import held_out_choice
+
+    rng = np.random.default_rng(5)
+    uv = rng.random((3000, 2))
+    pts = np.column_stack([uv, 0.3 * np.tanh(30 * (uv[:, 0] - 0.6))])  # a cliff across u = 0.6
+    layout = NetLayout((8, 5), (3, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
+    seen = np.arange(1000)
+    search = KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+    at_step = search.classical()
+    at_step[:4] = [0.35, 0.58, 0.62, 0.8]  # two of the four inner knots at the cliff
+    chosen, test = held_out_choice(search, at_step, layout, pts, uv, seen, 20)
+    assert test.kept == "swarm" and np.array_equal(chosen, at_step)
+    # less than half the held-out error at the first parameters (0.026 against 0.060), closer once polished,
+    # and its surface nearer the data
+    assert test.first.z < -2 and test.first.swarm_error < 0.5 * test.first.classical_error
+    assert test.polished.z < -2 and test.overshoot.z < -2
+    # knots that leave a wide last span: closer to the held-out points, but samples of its surface are
+    # farther from the data (where no point is, the point tests see nothing); the classical fit stays
+    wide_end = search.classical()
+    wide_end[:4] = [0.2, 0.5, 0.6, 0.7]
+    chosen, test = held_out_choice(search, wide_end, layout, pts, uv, seen, 20)
+    assert test.first.z < -2 and test.polished.z < -2 and test.overshoot.z > 2
+    assert test.kept == "classical" and np.array_equal(chosen, search.classical())
+
+
+def test_paired_test_measures_the_gain_in_standard_errors():
+    from psonurbs.fitting.validation import Validation, Z, paired_test
+
+    rng = np.random.default_rng(0)
+    noise = np.abs(rng.normal(0.0, 1.0, 4000))
+    # the same distances up to a per-point jitter: no real difference
+    same = paired_test(noise, noise * (1.0 + 0.01 * rng.normal(size=noise.size)))
+    assert abs(same.z) < Z
+    # 5% closer at every point: a gain far beyond the sampling error
+    better = paired_test(noise, 0.95 * noise)
+    assert better.z < -Z and better.swarm_error == pytest.approx(0.95 * better.classical_error)
+    # 0.1% closer on average but with point-to-point scatter fifty times larger: not significant
+    scatter = paired_test(noise, noise * (0.999 + 0.05 * rng.normal(size=noise.size)))
+    assert abs(scatter.z) < Z
+    d = (noise * (0.999 + 0.05 * rng.normal(size=noise.size))) ** 2 - noise ** 2
+    assert paired_test(noise, np.sqrt(noise ** 2 + d)).z == pytest.approx(
+        d.mean() / (d.std(ddof=1) / np.sqrt(len(d))))
+    # the swarm is kept for a real gain at its parameters that survives the polish
+    worse = paired_test(noise, 1.05 * noise)
+    assert Validation(better, better, same).kept == "swarm"
+    assert Validation(better, same, same).kept == "classical"  # the gain gone once polished
+    assert Validation(better, worse, same).kept == "classical"  # farther from the points once polished
+    assert Validation(better, better, worse).kept == "classical"  # its surface overshoots the data
+    assert Validation(same, better, better).kept == "classical"  # no gain where it chose its knots
+    info = Validation(better, better, same).to_dict()
+    assert info["kept"] == "swarm" and info["held_out_points"] == 4000
+    assert info["held_out_z"] == {"first": better.z, "polished": better.z, "overshoot": same.z}

@@ -1,11 +1,14 @@
-"""Parameter correction: foot points on the edges, and the Anderson mixing of the polish."""
+"""Parameter correction: foot points on the edges, and the Anderson mixing of the polish;
+the joint refinement with point weights."""
 from __future__ import annotations
 
 import numpy as np
 
 from psonurbs.fitting.polish import AndersonMixing
+from psonurbs.fitting.refine import refine_jointly
+from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout
-from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.projection import GridStart, closest_parameters
 
 
 def sheared_plane():
@@ -42,6 +45,30 @@ def test_foot_point_far_off_a_cylinder_patch_is_the_radial_projection():
     pts = np.c_[radius * np.cos(angle), radius * np.sin(angle), height]
     _, dist = closest_parameters(s, pts, np.full((3, 2), 0.5), iterations=10)
     np.testing.assert_allclose(dist, np.abs(radius - 1.0), rtol=0, atol=1e-12)
+
+
+def test_global_search_starts_at_the_nearest_vertex_and_finds_the_foot_point():
+    """On a wavy patch, points off it by up to 3% of its size: the start is the nearest
+    vertex of the tessellation (within a grid spacing of the foot point, the same start
+    for any chunking) and Newton takes it to the foot point."""
+    layout = NetLayout((6, 6), (3, 3))
+    i, j = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6), indexing="ij")
+    net = np.stack([i, j, 0.1 * np.sin(5 * i) * np.cos(4 * j)], -1).reshape(-1, 3)
+    surface = layout.surface(net, np.ones(36))
+    rng = np.random.default_rng(0)
+    foot = rng.uniform(0.05, 0.95, (400, 2))
+    s, su, sv = surface.derivatives(foot[:, 0], foot[:, 1])
+    normal = np.cross(su, sv)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    points = s + rng.uniform(-0.03, 0.03, (400, 1)) * normal
+    start = GridStart(surface, 64)(points)
+    us, vs = surface.parameter_grid(64, 64)
+    vertices = surface.evaluate_grid(us, vs).reshape(-1, 3)
+    nearest = np.argmin(((points[:, None] - vertices[None]) ** 2).sum(-1), axis=1)
+    np.testing.assert_array_equal(start, np.c_[us[nearest // 64], vs[nearest % 64]])
+    assert 0.3 / 63 < np.abs(start - foot).max() < 1.0 / 63
+    uv, dist = closest_parameters(surface, points, resolution=64)
+    np.testing.assert_allclose(uv, foot, atol=1e-9)
 
 
 def test_anderson_mixing_solves_a_slow_linear_iteration_much_faster():
@@ -86,3 +113,25 @@ def test_only_directions_with_edges_are_aligned_to_the_domain():
                 assert out[:, k].min() < 0.01 and out[:, k].max() > 0.99, (topology, k)
             else:  # a closed direction, or a sphere's pole-to-pole one: no edge to align
                 np.testing.assert_array_equal(out[:, k], uv[:, k])
+
+
+def test_joint_refinement_with_an_integer_weight_is_the_point_given_twice():
+    """The weighted refinement scales every point's residual and Jacobian rows by
+    sqrt(weight): weight 2 on a point is the point twice (same start, same steps)."""
+    layout = NetLayout((4, 4), (2, 2))
+    rng = np.random.default_rng(3)
+    uv = rng.random((120, 2))
+    pts = np.column_stack([uv, 0.2 * np.sin(3 * uv[:, 0]) * uv[:, 1]]) + rng.normal(0, 0.01, (120, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-4)
+    ones = np.ones(layout.n_free)
+    control = solver.solve(layout.rows(uv, ones), pts)
+    w = np.ones(120)
+    w[[5, 17, 60]] = 2.0
+    twice = np.r_[np.arange(120), [5, 17, 60]]
+    bounds = np.log([0.2, 5.0])
+    weighted = refine_jointly(layout, solver, pts, uv, control, ones, None, None, bounds, point_weights=w)
+    repeated = refine_jointly(layout, solver, pts[twice], uv[twice], control, ones, None, None, bounds)
+    np.testing.assert_allclose(weighted[0], repeated[0], rtol=1e-7, atol=1e-9)  # control points
+    np.testing.assert_allclose(weighted[1], repeated[1], rtol=1e-7)  # weights
+    np.testing.assert_allclose(weighted[2], repeated[2][:120], atol=1e-9)  # parameters
+    assert weighted[3] == repeated[3]

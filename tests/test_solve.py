@@ -161,3 +161,80 @@ def test_interpolating_data_has_zero_fit_and_exact_reproduction():
     data = rows @ affine
     control = RegularisedLeastSquares(layout.smoothness_operator(), 0.5).solve(rows, data)
     np.testing.assert_allclose(control, affine, atol=1e-8)
+
+
+def robust_weights(n, seed):
+    """Weights as a robust loss makes them: most near 1, some partial, a few exactly 0."""
+    w = np.random.default_rng(seed).uniform(0.3, 1.0, n)
+    w[::7] = 0.0
+    return w
+
+
+@pytest.mark.parametrize("name", ["open", "sphere"])
+def test_weighted_solve_equals_stacked_dense_weighted_least_squares(name):
+    layout, rows, data, r = problem(name, seed=9)
+    w = robust_weights(len(r), 10)
+    l_op = layout.smoothness_operator().toarray()
+    root = np.sqrt(w)[:, None]
+    lam = 1e-3 * np.trace(r.T @ (w[:, None] * r)) / np.trace(l_op.T @ l_op)  # from tr(R^T W R)
+    a = np.vstack([root * r, np.sqrt(lam) * l_op])
+    b = np.vstack([root * data, np.zeros((len(l_op), 3))])
+    expected = np.linalg.lstsq(a, b, rcond=None)[0]
+    got = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3).solve(rows, data, w)
+    np.testing.assert_allclose(got, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+
+
+def test_zero_weight_is_leaving_the_point_out_and_no_weights_are_unit_weights():
+    layout, rows, data, _ = problem("open", seed=11)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3)
+    w = np.ones(len(data))
+    # None and unit weights give bit-identical numbers (today's unweighted solve)
+    assert np.array_equal(solver.solve(rows, data), solver.solve(rows, data, w))
+    assert solver.leave_one_out_rmse(rows, data) == solver.leave_one_out_rmse(rows, data, w)
+    w[[3, 10, 20]] = 0.0
+    keep = w > 0
+    np.testing.assert_allclose(solver.solve(rows, data, w), solver.solve(rows.take(keep), data[keep]),
+                               rtol=1e-10, atol=1e-12)
+    # a left-out point does not count in the weighted LOO error, and keeps its plain residual
+    control, loo = solver.leave_one_out(rows, data, w)
+    np.testing.assert_allclose(loo[~keep], (rows @ control - data)[~keep], atol=1e-14)
+    assert solver.leave_one_out_rmse(rows, data, w) == pytest.approx(
+        solver.leave_one_out_rmse(rows.take(keep), data[keep]), rel=1e-10)
+
+
+@pytest.mark.parametrize("name", ["open", "sphere"])
+def test_weighted_leave_one_out_equals_brute_force_refits(name):
+    """e_i / (1 - w_i h_ii) is the residual at point i of the weighted fit without point i."""
+    layout, rows, data, r = problem(name, n_points=50, seed=12)
+    w = robust_weights(len(r), 13)
+    smoothing = 1e-3
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing)
+    l_op = layout.smoothness_operator().toarray()
+    gram = r.T @ (w[:, None] * r)
+    lam = smoothing * np.trace(gram) / np.trace(l_op.T @ l_op)  # fixed by the full weighted fit
+    ridge = 1e-12 * np.trace(gram) / len(gram)
+    brute = np.empty((len(r), 3))
+    for i in range(len(r)):
+        wi = w.copy()
+        wi[i] = 0.0
+        m = r.T @ (wi[:, None] * r) + lam * l_op.T @ l_op + ridge * np.eye(len(gram))
+        brute[i] = r[i] @ np.linalg.solve(m, r.T @ (wi[:, None] * data)) - data[i]
+    _, loo = solver.leave_one_out(rows, data, w)
+    np.testing.assert_allclose(loo, brute, rtol=1e-7, atol=1e-9)
+    expected = np.sqrt(np.sum(w * np.sum(brute ** 2, axis=1)) / np.sum(w))
+    assert solver.leave_one_out_rmse(rows, data, w) == pytest.approx(expected, rel=1e-8)
+
+
+def test_an_integer_weight_is_the_point_given_that_many_times():
+    """Weight 2 on a point is the point twice: the data term, the smoothing's relative
+    weight (from tr(R^T W R)) and the leave-one-out residuals of the other points."""
+    layout, rows, data, _ = problem("open", seed=14)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3)
+    w = np.ones(len(data))
+    w[[2, 9]] = 2.0
+    twice = np.r_[np.arange(len(data)), [2, 9]]
+    np.testing.assert_allclose(solver.solve(rows, data, w), solver.solve(rows.take(twice), data[twice]),
+                               rtol=1e-10, atol=1e-12)
+    others = np.setdiff1d(np.arange(len(data)), [2, 9])
+    np.testing.assert_allclose(solver.leave_one_out(rows, data, w)[1][others],
+                               solver.leave_one_out(rows.take(twice), data[twice])[1][others], rtol=1e-8, atol=1e-12)

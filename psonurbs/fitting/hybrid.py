@@ -3,19 +3,30 @@
 A particle is (inner knots along u, inner knots along v, log-weights of the free
 control points). For given knots and weights the surface is linear in its control
 points, so they are never searched: the fitness solves for them by regularised least
-squares and returns the leave-one-out RMSE (or the plain RMSE).
+squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the robust
+loss's point weights when there are any (:mod:`psonurbs.fitting.robust`).
+
+The swarm's fitness evaluates all particles of an iteration together
+(:mod:`psonurbs.fitting.stacked_solve`); :meth:`KnotWeightSearch.error` is the same
+number for one particle through the single solver (scipy design matrices, dense
+Cholesky), used by the topology choice and the validation.
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
-from psonurbs.geometry.basis import random_inner_knots
+from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
 from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.stacked_rows import CellLayout, stacked_rows
 
 from .pso import Polytope
-from .solve import RegularisedLeastSquares
+from .solve import RegularisedLeastSquares, weighted_rms
+from .stacked_solve import StackedLeastSquares
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
+GROUP_BYTES = 2 ** 21  # particles are evaluated in groups whose rows take about this much (cache)
 
 
 class KnotWeightSearch:
@@ -29,9 +40,11 @@ class KnotWeightSearch:
     """
 
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 uv: np.ndarray, cross_validation: bool, min_gap: float, weight_bounds: tuple[float, float]):
+                 uv: np.ndarray, cross_validation: bool, min_gap: float, weight_bounds: tuple[float, float],
+                 point_weights: np.ndarray | None = None):
         self.layout, self.solver = layout, solver
         self.points, self.uv = points, uv
+        self.point_weights = point_weights  # (N,) the robust loss's, or None
         self.counts = layout.inner_counts
         self.gaps = tuple(min_gap / (c + 1) for c in self.counts)
         self.log_bounds = np.log(weight_bounds)
@@ -55,6 +68,12 @@ class KnotWeightSearch:
                               Polytope.ordered(cv, self.gaps[1]).embed(self.dimension, cu),
                               Polytope.box(lo, hi))
 
+    @staticmethod
+    def uniform(layout: NetLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(weights, inner knots u, inner knots v) of the classical fit: unit weights, uniform knots."""
+        cu, cv = layout.inner_counts
+        return np.ones(layout.n_free), uniform_inner_knots(cu), uniform_inner_knots(cv)
+
     def classical(self) -> np.ndarray:
         """Uniform knots, unit weights and the configured smoothing: the classical fit."""
         cu, cv = self.counts
@@ -76,8 +95,27 @@ class KnotWeightSearch:
             swarm.append(start + mix * rng.random() * (target - start))
         return np.array(swarm)
 
+    @cached_property
+    def stacked(self) -> StackedLeastSquares:
+        return StackedLeastSquares(self.solver, CellLayout(self.layout))
+
     def fitness(self, positions: np.ndarray) -> np.ndarray:
-        return np.array([self.error(x) for x in positions])
+        """The error of every particle (P,), all evaluated together; inf for a particle
+        whose normal matrix is not numerically positive definite."""
+        positions = np.atleast_2d(positions)
+        group = max(1, GROUP_BYTES // (8 * len(self.points) * int(np.prod(np.add(self.layout.degrees, 1)))))
+        if len(positions) > group:
+            return np.concatenate([self.fitness(positions[k:k + group]) for k in range(0, len(positions), group)])
+        cu, cv = self.counts
+        try:
+            rows = stacked_rows(self.stacked.cells, self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
+                                positions[:, cu:cu + cv])
+            return self.stacked.errors(rows, self.points, 10.0 ** positions[:, -1], self.cross_validation,
+                                       self.point_weights)
+        except np.linalg.LinAlgError:
+            if len(positions) == 1:
+                return np.array([np.inf])
+            return np.concatenate([self.fitness(x) for x in positions])
 
     def error(self, x: np.ndarray) -> float:
         inner_u, inner_v, weights, smoothing = self.split(x)
@@ -85,8 +123,27 @@ class KnotWeightSearch:
         solver = self.solver.with_smoothing(smoothing)
         try:
             if self.cross_validation:
-                return solver.leave_one_out_rmse(rows, self.points)
-            control = solver.solve(rows, self.points)
-            return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))
+                return solver.leave_one_out_rmse(rows, self.points, self.point_weights)
+            control = solver.solve(rows, self.points, self.point_weights)
+            return weighted_rms(np.sum((rows @ control - self.points) ** 2, axis=1), self.point_weights)
         except np.linalg.LinAlgError:
             return np.inf
+
+
+def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
+                  point_weights: np.ndarray | None = None) -> float:
+    """The smoothing weight with the least leave-one-out error at these parameters.
+
+    After the polish the parameters are close to foot points, so the choice is sharp:
+    vanishing where the net represents the shape, larger where the data are noisy.
+    """
+    rows = layout.rows(uv, weights, inner_u, inner_v)
+    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
+    errors = []
+    for s in grid:
+        try:
+            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points, point_weights))
+        except np.linalg.LinAlgError:
+            errors.append(np.inf)
+    return float(grid[int(np.argmin(errors))])

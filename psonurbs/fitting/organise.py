@@ -14,6 +14,8 @@ from scipy.spatial import cKDTree
 
 from psonurbs.errors import InputError
 
+from .outliers import Neighbourhoods
+
 # a distance, in normalised units (shares of the diagonal), at which a point lies on a
 # surface: the precision to which fitted surfaces are evaluated and scored
 RESOLUTION = 1e-6
@@ -41,6 +43,7 @@ class Cloud:
     points: np.ndarray  # (N, 3) distinct input points, normalised
     frame: Frame
     duplicates: int  # how many input points repeated an earlier one
+    neighbourhoods: Neighbourhoods | None = None  # the local test's, for the robust loss
 
     def __len__(self) -> int:
         return len(self.points)
@@ -102,31 +105,15 @@ def principal_frame(points: np.ndarray) -> Frame:
     return Frame(centroid, vt, diagonal)
 
 
-def organise(points: np.ndarray, orders: tuple[int, int], remove_outliers: bool = False) -> Cloud:
+def organise(points: np.ndarray, orders: tuple[int, int]) -> Cloud:
     """Validate, de-duplicate (keeping input order) and normalise a cloud."""
     points = np.asarray(points, float)
     check_fittable(points, orders)
     _, first = np.unique(points, axis=0, return_index=True)
     keep = np.sort(first)
     distinct = points[keep]
-    if remove_outliers:
-        distinct = distinct[statistical_inliers(distinct)]
     frame = principal_frame(distinct)
     return Cloud(frame.to_local(distinct), frame, len(points) - len(keep))
-
-
-def statistical_inliers(points: np.ndarray, neighbours: int = 16, ratio: float = 3.0) -> np.ndarray:
-    """Mask of points whose mean distance to their neighbours is not an outlier.
-
-    A point is dropped when that mean distance exceeds the median of all of them by
-    ``ratio`` robust standard deviations (1.4826 MAD).
-    """
-    k = min(neighbours + 1, len(points))
-    d, _ = cKDTree(points).query(points, k=k)
-    mean_d = d[:, 1:].mean(axis=1)
-    med = np.median(mean_d)
-    mad = 1.4826 * np.median(np.abs(mean_d - med)) + 1e-15
-    return mean_d <= med + ratio * mad
 
 
 def subsample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:

@@ -62,14 +62,23 @@ def cell_counts(uv: np.ndarray, cells: int) -> np.ndarray:
     return np.bincount(idx[:, 0] * cells + idx[:, 1], minlength=cells * cells)
 
 
-def project_on_plane(points: np.ndarray, normal: np.ndarray) -> Parametrisation:
-    q = points @ plane_basis(normal).T
-    q = q @ min_area_rectangle(q).T
-    lo, span = q.min(axis=0), np.ptp(q, axis=0)
+def unit_square(q: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """Plane coordinates (N, 2) scaled onto [0, 1]^2 along the sides of the minimum-area
+    rectangle around them (or around the ``reference`` points: the others are clipped),
+    u along the longer side."""
+    rect = q if reference is None else reference
+    turn = min_area_rectangle(rect).T
+    q, rect = q @ turn, rect @ turn
+    lo, span = rect.min(axis=0), np.ptp(rect, axis=0)
     uv = (q - lo) / np.where(span > 0, span, 1.0)
     if span[1] > span[0]:  # u along the longer side
         uv = uv[:, ::-1]
-    return Parametrisation(np.clip(uv, 0.0, 1.0), {"method": "plane", "normal": [float(c) for c in normal]})
+    return np.clip(uv, 0.0, 1.0)
+
+
+def project_on_plane(points: np.ndarray, normal: np.ndarray) -> Parametrisation:
+    return Parametrisation(unit_square(points @ plane_basis(normal).T),
+                           {"method": "plane", "normal": [float(c) for c in normal]})
 
 
 def hemisphere_directions(count: int) -> np.ndarray:

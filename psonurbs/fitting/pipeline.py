@@ -5,14 +5,19 @@ of both directions, the weights and the smoothing weight); inside its fitness th
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-left out first (:mod:`psonurbs.fitting.robust`). The best particle is kept only if, polished,
-it is nearer than the classical start to the points the swarm never saw
-(:func:`validated`); it is polished (parameter correction), the smoothing re-chosen by
+judged locally before anything is parametrised (:mod:`psonurbs.fitting.outliers`) and
+every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.robust`). The best
+particle is kept only if it predicts the points the swarm never saw better than the
+classical start, by paired tests (:mod:`psonurbs.fitting.validation`); it is polished
+(parameter correction), the smoothing re-chosen by
 leave-one-out at the corrected parameters and polished again; then, with ``refine``,
 control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.refine`),
 anchored to the data's edges and kept if the gain pays for the freed weights
 (:func:`pays_for_weights`). ``strategy: full`` is the paper's own search space
 (Eq. 10, :mod:`psonurbs.fitting.paper`): the swarm's best surface is the result.
+The result is checked without ground truth (:mod:`psonurbs.fitting.checks`: the surface
+or its net far outside the cloud's box, a fold, surface far from every point); a fit
+that fails a check carries warnings and says so in its notes.
 """
 from __future__ import annotations
 
@@ -27,17 +32,29 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.trim import Trim
 
+from .checks import check_fit
 from .footprint import footprint, footprint_notes
-from .hybrid import SMOOTHING_RANGE, KnotWeightSearch
+from .hybrid import KnotWeightSearch, loo_smoothing
 from .organise import RESOLUTION, Cloud, organise, subsample
+from .outliers import OUTLIER_SIGMAS, local_outliers
 from .paper import FullSearch
 from .parametrise import Parametrisation
 from .polish import polish
 from .pso import SwarmResult, minimise
 from .refine import refine_jointly
-from .robust import OUTLIER_SIGMAS, classical_inliers, kept_sample, refreshed_inliers
-from .solve import RegularisedLeastSquares
+from .robust import (
+    CUTOFF_SIGMAS,
+    classical_weights,
+    kept_sample,
+    loss_summary,
+    parameters_for_all,
+    refreshed_weights,
+    trusted_points,
+)
+from .sampling import big_cloud_sample, finished
+from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
+from .validation import held_out_choice
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 
@@ -51,6 +68,7 @@ class FitResult:
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
+    warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.checks`)
     trim: Trim | None = None  # the face's loops in the surface's parameter domain (None: untrimmed)
 
 
@@ -58,55 +76,16 @@ def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
 
 
-def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray) -> float:
-    """The smoothing weight with the least leave-one-out error at these parameters.
-
-    After the polish the parameters are close to foot points, so the choice is sharp:
-    vanishing where the net represents the shape, larger where the data are noisy.
-    """
-    rows = layout.rows(uv, weights, inner_u, inner_v)
-    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
-    errors = []
-    for s in grid:
-        try:
-            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points))
-        except np.linalg.LinAlgError:
-            errors.append(np.inf)
-    return float(grid[int(np.argmin(errors))])
-
-
-def validated(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray, uv: np.ndarray,
-              seen: np.ndarray, polish_iterations: int) -> tuple[np.ndarray, dict]:
-    """The swarm's best particle, or the classical start if the best does worse on the
-    points the swarm never saw.
-
-    Among thousands of particles, the least leave-one-out error on one sample is an
-    optimistic pick (on noisy data: knots and weights tuned to that sample's noise).
-    Both are polished on the swarm's points; the surface nearer the others is kept.
-    """
-    unseen = np.setdiff1d(np.arange(len(points)), seen)
-    candidates = {"classical": search.classical(), "swarm": best}
-    if len(unseen) == 0 or np.array_equal(best, candidates["classical"]):
-        return best, {}
-    errors = {}
-    for name, x in candidates.items():
-        inner_u, inner_v, weights, smoothing = search.split(x)
-        surface = polish(layout, search.solver.with_smoothing(smoothing), points[seen], uv[seen], weights,
-                         inner_u, inner_v, polish_iterations)[1]
-        errors[name] = rms(closest_parameters(surface, points[unseen])[1])
-    kept = "swarm" if errors["swarm"] < errors["classical"] else "classical"
-    return candidates[kept], {"held_out_points": int(len(unseen)), "held_out_error": errors, "kept": kept}
-
-
-def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> bool:
+def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int,
+                     point_weights: np.ndarray | None = None) -> bool:
     """Whether the refinement's drop in the residual sum of squares pays for the weights
     it frees (Akaike): ``n ln(RSS_before / RSS_after) > 2 n_weights``.
 
     On noisy data the extra freedom buys a percent or two of RMSE by fitting the noise,
     at the price of the true shape; on a conic it takes the error to zero.
     """
-    rss_before, rss_after = float(np.sum(before ** 2)), float(np.sum(after ** 2))
+    c = 1.0 if point_weights is None else point_weights
+    rss_before, rss_after = float(np.sum(c * before ** 2)), float(np.sum(c * after ** 2))
     if rss_after <= 0.0:
         return rss_before > 0.0
     return len(before) * np.log(rss_before / rss_after) > 2.0 * n_weights
@@ -114,7 +93,7 @@ def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int) -> b
 
 def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
              control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-             polish_iterations: int) -> NurbsSurface:
+             polish_iterations: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
     """The jointly refined surface with its edges back on the data.
 
     The refinement may let the data retreat from a bounded direction's edges (see
@@ -129,55 +108,74 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
     surface = layout.surface(control, weights, inner_u, inner_v)
     if not any(layout.bounded):
         return surface
-    if rms(closest_parameters(surface, points, uv)[1]) <= RESOLUTION:
+    if weighted_rms(closest_parameters(surface, points, uv)[1] ** 2, point_weights) <= RESOLUTION:
         extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
                   for k in (0, 1)]
         return surface.restricted(*extent)
-    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True)[1]
+    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True,
+                  point_weights=point_weights)[1]
 
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots, weights and smoothing (least-squares control points), then the
-    polish and the optional joint refinement; with ``robust``, on the inliers only
-    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one after)."""
+    """Swarm over knots, weights and smoothing (least-squares control points), the best
+    kept only if it predicts the points it never saw better than the classical fit
+    (:mod:`psonurbs.fitting.validation`), then the polish and the optional joint
+    refinement; with ``robust``, every solve weighted by the robust loss
+    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one
+    after), the points of weight 0 left out."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
-    keep = classical_inliers(layout, solver, cloud.points, par.uv) if config.robust else np.ones(len(cloud), bool)
-    points, uv, seen = cloud.points[keep], par.uv[keep], kept_sample(sample, keep)
+    w = classical_weights(layout, solver, cloud.points, par.uv, cloud.neighbourhoods) if config.robust \
+        else np.ones(len(cloud))
+    keep = w > 0
+    points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
+    c = w if config.robust else None  # the point weights of every solve
     search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
-                              config.min_knot_gap, tuple(config.weight_bounds))
+                              config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[seen])
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    chosen, validation = validated(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations)
+    chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
     inner_u, inner_v, weights, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                         config.polish_iterations)
+                                         config.polish_iterations, point_weights=c)
     if config.robust:
-        keep, uv = refreshed_inliers(surface, cloud.points, keep, uv)
-        points, seen = cloud.points[keep], kept_sample(sample, keep)
+        w, uv = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
+        keep = w > 0
+        points, uv, seen, c = cloud.points[keep], uv[keep], kept_sample(sample, keep), w[keep]
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
     solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], weights,
-                                                 inner_u, inner_v))
+                                                 inner_u, inner_v, None if c is None else c[seen]))
     control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                        config.polish_iterations)
+                                        config.polish_iterations, point_weights=c)
     steps += more
+    if config.robust:  # the points left out on the first polished surface, judged on the better one
+        again, uv_all = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
+        if not np.array_equal(again > 0, keep):
+            w, keep = again, again > 0
+            points, uv, seen, c = cloud.points[keep], uv_all[keep], kept_sample(sample, keep), w[keep]
+            control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
+                                                config.polish_iterations, point_weights=c)
+            steps += more
     refine_steps, kept = 0, False
     if config.refine:
         control, weights, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, weights,
-                                                            inner_u, inner_v, np.log(config.weight_bounds))
+                                                            inner_u, inner_v, np.log(config.weight_bounds),
+                                                            point_weights=c)
         refined = anchored(layout, solver, points, uv, control, weights, inner_u, inner_v,
-                           config.polish_iterations)
+                           config.polish_iterations, c)
         kept = pays_for_weights(closest_parameters(surface, points)[1], closest_parameters(refined, points)[1],
-                                layout.n_free)
+                                layout.n_free, c)
         if kept:
             surface = refined
+    validation = {} if test is None else test.to_dict()
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical())), **validation},
-            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept),
-            "outliers": int(len(keep) - keep.sum())}
+            "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept)}
+    if config.robust:
+        info["robust"] = {"loss": loss_summary(w)}
     return surface, swarm, info
 
 
@@ -202,25 +200,44 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     """
     points = np.asarray(points, float)
     with threadpool_limits(limits=1):
-        cloud = organise(points, tuple(config.orders), config.remove_outliers)
+        cloud = organise(points, tuple(config.orders))
+        local = local_outliers(cloud.points) if config.robust else None
+        if local is not None:  # the outliers go before they can steer the parametrisation
+            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates, local.neighbourhoods())
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
+        # a big cloud is fitted on a subsample holding the swarm's points, then finished on all
+        big = big_cloud_sample(len(cloud), sample) if config.strategy == "hybrid" else None
+        fitted, fitted_sample = (cloud, sample) if big is None else (
+            Cloud(cloud.points[big], cloud.frame, cloud.duplicates), np.searchsorted(big, sample))
         scores = None
+        trusted = trusted_points(cloud.neighbourhoods, len(cloud))  # they alone steer the parametrisation
+        if big is not None:  # (its robust loss weighs by the plain scale: the neighbourhoods are the cloud's)
+            trusted = trusted[big]
+        points_t, sample_t = fitted.points[trusted], kept_sample(fitted_sample, trusted)
         if config.topology == "auto":
-            topology, par, scores = choose_topology(cloud.points, sample, config)
+            topology, par, scores = choose_topology(points_t, sample_t, config)
         else:
             topology = config.topology
-            par = parametrise_for(cloud.points, sample, topology, config)
+            par = parametrise_for(points_t, sample_t, topology, config)
+        par = Parametrisation(parameters_for_all(fitted.points, trusted, par.uv), par.info)
         layout = layout_for(topology, config.net_size, config.degrees)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         run = run_full if config.strategy == "full" else run_hybrid
-        surface, swarm, info = run(cloud, layout, par, sample, config, rng, progress)
+        surface, swarm, info = run(fitted, layout, par, fitted_sample, config, rng, progress)
+        if big is not None:
+            done = finished(layout, surface, cloud.points, info["smoothing"], config.robust,
+                            info["refined"] and any(layout.bounded), cloud.neighbourhoods)
+            surface, info["subsample"] = done.surface, {"points": int(len(big)), "final_rounds": done.rounds}
+            if done.point_weights is not None:
+                info["robust"] = {"loss": loss_summary(done.point_weights)}
         local = cloud.frame.to_local(points)
         uv, dist = closest_parameters(surface, local)
         face = footprint(surface, local, uv, dist, config.trim if topology == "open" else False)
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
+        checks = check_fit(surface, cloud.points)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
                          surface.closed_u, surface.closed_v)
@@ -236,8 +253,12 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         "points": int(len(points)),
         "control_points": int(layout.n_free),
         "swarm_best_error": float(swarm.best_value * diag),
-        "outliers": int(info.get("outliers", 0)),
+        "outliers": 0,
+        **checks.to_dict(),
     }
+    if local is not None:  # left out: locally judged outliers, and points of weight 0 in the final solve
+        info.setdefault("robust", {})["local"] = local.to_dict(diag)
+        metrics["outliers"] = int(local.outliers.sum()) + info["robust"].get("loss", {}).get("left_out", 0)
     if "classical_error" in info["swarm"]:
         info["swarm"]["classical_error"] *= diag
     for name in info["swarm"].get("held_out_error", {}):
@@ -249,10 +270,16 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"under-determined: {len(cloud)} points for {layout.n_free} control points, "
                      "the smoothness term decides between them")
     if metrics["outliers"]:
-        notes.append(f"{metrics['outliers']} gross outliers (over {OUTLIER_SIGMAS:g} robust standard deviations "
-                     "off the surface) left out of the fit; rmse and max_error still count them")
+        local_count = int(local.outliers.sum())
+        notes.append(f"{metrics['outliers']} gross outliers left out of the fit ({local_count} over {OUTLIER_SIGMAS:g} "
+                     "robust sigmas off the surface their neighbours describe, "
+                     f"{metrics['outliers'] - local_count} over {CUTOFF_SIGMAS:g} off the fit and from their neighbours); "
+                     "rmse and max_error still count them")
     if cloud.duplicates:
         notes.append(f"{cloud.duplicates} duplicate points ignored")
+    if "subsample" in info:
+        notes.append(f"fitted on {info['subsample']['points']} of the {len(cloud)} points, "
+                     f"then {info['subsample']['final_rounds']} rounds of parameter correction on all")
     if scores is not None:
         info["topology_scores"] = scores
         notes.append(f"topology auto: {topology} (" + ", ".join(
@@ -260,4 +287,5 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             for name, s in scores.items()) + ")")
     notes += footprint_notes(face, len(points))
     metrics["outside_trim"] = int(face.points_outside)
-    return FitResult(world, topology, metrics, curve, info, notes, trim=face.trim)
+    notes += [f"suspect fit: {warning}" for warning in checks.warnings]
+    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings, trim=face.trim)

@@ -4,9 +4,13 @@ edges kept on the domain's.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
+
+from .solve import weighted_rms
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
@@ -83,23 +87,33 @@ class AndersonMixing:
         return g - (d_g @ c).reshape(g.shape)
 
 
+class Polished(NamedTuple):
+    control: np.ndarray  # (n_free, 3) the best round's free control points
+    surface: object  # their NurbsSurface
+    uv: np.ndarray  # (N, 2) the points' foot-point parameters on it
+    rounds: int  # rounds taken after the first solve
+
+
 def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
-           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int, realign: bool = False):
+           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int,
+           realign: bool = False, align: bool = True, point_weights: np.ndarray | None = None) -> Polished:
     """Alternate the least-squares solve with parameter correction while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
-    does not lower the error).
+    does not lower the error). ``point_weights`` (N,) weigh the solve and the error.
 
+    The data's extent is first aligned onto the domain (``align``; not for parameters
+    that are foot points on a surface already), with ``realign`` at every round.
     Returns the best control points (free), their surface, its foot-point parameters
     and the rounds taken.
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
-    uv = best_image = align_to_domain(uv, layout)
+    uv = best_image = align_to_domain(uv, layout) if align or realign else uv
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
-        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points)
+        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points, point_weights)
         surface = layout.surface(control, weights, inner_u, inner_v)
         new_uv, dist = closest_parameters(surface, points, uv)
-        new_rmse = float(np.sqrt(np.mean(dist ** 2)))
+        new_rmse = weighted_rms(dist ** 2, point_weights)
         if new_rmse >= rmse * (1.0 - 1e-4):
             if not mixer.mixing:
                 break
@@ -109,4 +123,4 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
         best_image = align_to_domain(new_uv, layout) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
-    return best_control, best, best_uv, it
+    return Polished(best_control, best, best_uv, it)

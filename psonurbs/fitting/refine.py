@@ -4,7 +4,10 @@ Alternating parameter correction with linear least squares converges slowly and
 cannot move the weights. Here all of them are the unknowns of one non-linear least
 squares problem (the knots stay where the swarm put them):
 
-    min  sum_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+    min  sum_i c_i |S(u_i, v_i; P, w) - x_i|^2 + lam |L P|^2 + kappa |C P|^2
+
+(c_i > 0 the robust loss's point weights, 1 without them; below, every point's residual
+and Jacobian rows are scaled by sqrt(c_i), which makes the problem the unweighted one)
 
 With R the rational basis at the points, the Jacobian of point i's residual is
 
@@ -31,25 +34,29 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as la
 
+from psonurbs.geometry.chunks import chunks
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import keep_in_domain
 from psonurbs.geometry.rows import Rows
 
 from .solve import RegularisedLeastSquares
 
+REFINE_CHUNK = 1 << 14  # points whose Jacobian blocks are formed together: some 40 MB at m = 16
+
 
 class JointProblem:
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                 inner_u: np.ndarray, inner_v: np.ndarray):
+                 inner_u: np.ndarray, inner_v: np.ndarray, point_weights: np.ndarray | None = None):
         self.layout, self.solver, self.points = layout, solver, points
         self.inner = (inner_u, inner_v)
         self.n = layout.n_free
+        self.root = np.ones(len(points)) if point_weights is None else np.sqrt(point_weights)  # sqrt(c_i)
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
         """Residuals, objective and the basis rows at the given unknowns."""
         rows = self.layout.rows(uv, weights, *self.inner)
-        residual = rows @ control - self.points
-        regulariser = self.solver.regulariser(float(np.sum(rows.values ** 2)))  # per coordinate
+        residual = self.root[:, None] * (rows @ control - self.points)
+        regulariser = self.solver.regulariser(float(np.sum(self.root[:, None] ** 2 * rows.values ** 2)))
         objective = float(np.sum(residual ** 2) + np.sum(control * (regulariser @ control)))
         return {"rows": rows, "residual": residual, "regulariser": regulariser, "objective": objective}
 
@@ -60,70 +67,124 @@ class JointProblem:
         return ((target < 0.0) | (target > 1.0)) & ~np.array(self.layout.closed)[None, :]
 
     def linearise(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray, ev: dict) -> dict:
-        """The parts of the normal equations that do not depend on the damping."""
+        """The parts of the normal equations that do not depend on the damping:
+        ``J_net^T J_net`` (with the regulariser) and ``J_net^T r``, summed over chunks of
+        points from per-point arrays of m values (the structure of J_net above: the
+        rows v and ``v_c (P_c - S_i)``), and every point's ``J_l = [S_u S_v]`` (N, 3, 2)."""
         n, rows, res = self.n, ev["rows"], ev["residual"]
         surface = self.layout.surface(control, weights, *self.inner)
         _, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
-        c, v = rows.columns, rows.values
-        s = control[c] - (rows @ control)[:, None, :]  # P_c - S_i, (N, m, 3)
-        columns = np.concatenate([3 * c, 3 * c + 1, 3 * c + 2, 3 * n + c], axis=1)
-        zeros = np.zeros_like(v)
-        # row k (coordinate k of every point's residual) of the Jacobian in the net unknowns
-        jn = np.stack([np.concatenate([v if j == k else zeros for j in range(3)] + [v * s[:, :, k]], axis=1)
-                       for k in range(3)], axis=1)  # (N, 3, 4m)
-        stacked = Rows(jn.reshape(-1, jn.shape[2]), np.repeat(columns, 3, axis=0), 4 * n, np.repeat(rows.cells, 3))
-        penalty = np.zeros((4 * n, 4 * n))
-        penalty[:3 * n, :3 * n] = np.kron(ev["regulariser"], np.eye(3))
-        gram = stacked.gram() + penalty
-        g = stacked.project(res.reshape(-1, 1))[:, 0] + penalty @ np.concatenate([control.ravel(), np.zeros(n)])
-        return {"v": v, "s": s, "jl": np.stack([su, sv], axis=2), "columns": columns, "cells": rows.cells,
-                "gram": gram, "g": g, "residual": res}
+        gram, g = np.zeros((4 * n, 4 * n)), np.zeros(4 * n)
+        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
+        parts = []
+        for part in chunks(len(res), REFINE_CHUNK):
+            piece = rows.take(part)
+            scaled = piece.scaled(self.root[part])  # the rows of the weighted problem, sqrt(c_i) R
+            blocks = piece.blocks()
+            vs = scaled.values[:, :, None] * (control[piece.columns] - (piece @ control)[:, None, :])  # (c, m, 3)
+            for batch in blocks.batches:
+                v, vs_b = blocks.pad(scaled.values, batch), blocks.pad(vs, batch)
+                plain = blocks.place(np.matmul(v.transpose(0, 2, 1), v), batch)
+                for k in range(3):
+                    gram[ctrl[k], ctrl[k]] += plain
+                    cross = blocks.place(np.matmul(v.transpose(0, 2, 1), vs_b[..., k]), batch)
+                    gram[ctrl[k], wts] += cross
+                    gram[wts, ctrl[k]] += cross.T
+                    gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
+            g[:3 * n] += scaled.project(res[part]).ravel()
+            g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
+            parts.append((part, piece, scaled, blocks))
+        penalty = np.kron(ev["regulariser"], np.eye(3))
+        gram[:3 * n, :3 * n] += penalty
+        g[:3 * n] += penalty @ control.ravel()
+        jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
+        return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
 
-    def step(self, lin: dict, damping: float, frozen: np.ndarray | None = None):
-        """The damped Gauss-Newton step (d_control, d_log_weights, d_uv); parameters
-        marked ``frozen`` (N, 2) stay where they are. The 2 x 2 blocks are inverted
-        in closed form."""
-        n, v, s, columns, cells, res = self.n, lin["v"], lin["s"], lin["columns"], lin["cells"], lin["residual"]
-        jl = lin["jl"] if frozen is None else lin["jl"] * ~frozen[:, None, :]  # (N, 3, 2)
+    @staticmethod
+    def _point_terms(lin: dict, part: slice, piece: Rows, damping: float, frozen: np.ndarray | None) -> dict:
+        """A chunk's per-point blocks: C_i = J_l^T J_l + damping (its Cholesky factor L_i
+        in closed form), ``t_i = (P_c - S_i) . J_l`` (chunk, m, 2) and ``J_l^T r_i``."""
+        jl = lin["jl"][part] if frozen is None else lin["jl"][part] * ~frozen[part, None, :]  # (c, 3, 2)
         a = np.sum(jl[:, :, 0] ** 2, axis=1)
         c = np.sum(jl[:, :, 1] ** 2, axis=1)
         off = np.sum(jl[:, :, 0] * jl[:, :, 1], axis=1)
         shift = damping * np.maximum((a + c) / 2.0, 1e-300)
         a, c = a + shift, c + shift
         if frozen is not None:
-            a, c = a + frozen[:, 0], c + frozen[:, 1]
-        # B_i = J_net,i^T J_l,i: control blocks v_c * J_l[k], weight block v_c * (P_c - S_i) . J_l
-        b = np.concatenate([v[:, :, None] * jl[:, k, None, :] for k in range(3)]
-                           + [v[:, :, None] * np.einsum("nmk,nkj->nmj", s, jl)], axis=1)  # (N, 4m, 2)
+            a, c = a + frozen[part, 0], c + frozen[part, 1]
         l11 = np.sqrt(a)
         l21 = off / l11
         l22 = np.sqrt(np.maximum(c - l21 ** 2, 1e-300))
-        y0 = b[:, :, 0] / l11[:, None]  # B_i L_i^-T, C_i = L_i L_i^T
-        y1 = (b[:, :, 1] - b[:, :, 0] * (l21 / l11)[:, None]) / l22[:, None]
-        schur = lin["gram"] - Rows(np.concatenate([y0, y1]), np.concatenate([columns, columns]),
-                                   4 * n, np.concatenate([cells, cells])).gram()
+        control = lin["control"]
+        s = control[piece.columns] - (piece @ control)[:, None, :]  # P_c - S_i, (c, m, 3)
+        t = sum(s[:, :, k, None] * jl[:, None, k, :] for k in range(3))
+        return {"jl": jl, "a": a, "c": c, "off": off, "det": a * c - off ** 2, "l11": l11, "l21": l21, "l22": l22,
+                "t": t, "c_vec": np.sum(jl * lin["residual"][part][:, :, None], axis=1)}
+
+    @staticmethod
+    def _c_inverse(q: dict, x: np.ndarray) -> np.ndarray:
+        """``C_i^-1 x_i`` for (chunk, 2) x."""
+        return np.stack([q["c"] * x[:, 0] - q["off"] * x[:, 1], q["a"] * x[:, 1] - q["off"] * x[:, 0]],
+                        axis=1) / q["det"][:, None]
+
+    def step(self, lin: dict, damping: float, frozen: np.ndarray | None = None):
+        """The damped Gauss-Newton step (d_control, d_log_weights, d_uv); parameters
+        marked ``frozen`` (N, 2) stay where they are. The 2 x 2 blocks are inverted
+        in closed form.
+
+        With ``B_i L_i^-T = [y0 y1]`` (C_i = L_i L_i^T) the Schur complement subtracts
+        ``sum_i y0 y0^T + y1 y1^T``. On control point c, coordinate k, y_e is
+        ``v_c a_ek`` (a scalar a_ek per point), on weight c ``z_ec = v_c (L_i^-1 t_ic)_e``,
+        so its blocks are cross Grams of per-point arrays of m values, a chunk at a time.
+        """
+        n = self.n
+        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
+        schur, rhs = lin["gram"].copy(), -lin["g"]
+        for part, piece, scaled, blocks in lin["parts"]:
+            q = self._point_terms(lin, part, piece, damping, frozen)
+            v, jl, t, l11, l22, ratio = scaled.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
+            a = np.stack([jl[:, :, 0] / l11[:, None], (jl[:, :, 1] - jl[:, :, 0] * ratio[:, None]) / l22[:, None]],
+                         axis=2)  # (c, 3, 2): a_ek
+            z = v[:, :, None] * np.stack([t[:, :, 0] / l11[:, None],
+                                          (t[:, :, 1] - t[:, :, 0] * ratio[:, None]) / l22[:, None]], axis=2)
+            for batch in blocks.batches:
+                vb, ab, zb = blocks.pad(v, batch), blocks.pad(a, batch), blocks.pad(z, batch)
+                vt = vb.transpose(0, 2, 1)
+                for k in range(3):
+                    for j in range(k, 3):
+                        scale = np.sum(ab[:, :, k, :] * ab[:, :, j, :], axis=2)[:, :, None]
+                        block = blocks.place(np.matmul(vt, scale * vb), batch)
+                        schur[ctrl[k], ctrl[j]] -= block
+                        if j != k:
+                            schur[ctrl[j], ctrl[k]] -= block.T
+                    mixed = np.sum(ab[:, :, k, None, :] * zb, axis=3)
+                    cross = blocks.place(np.matmul(vt, mixed), batch)
+                    schur[ctrl[k], wts] -= cross
+                    schur[wts, ctrl[k]] -= cross.T
+                schur[wts, wts] -= sum(blocks.place(np.matmul(zb[..., e].transpose(0, 2, 1), zb[..., e]), batch)
+                                       for e in range(2))
+            w_vec = self._c_inverse(q, q["c_vec"])
+            rhs[:3 * n] += scaled.project(np.sum(jl * w_vec[:, None, :], axis=2)).ravel()
+            rhs[wts] += np.bincount(piece.columns.ravel(), (v * np.sum(t * w_vec[:, None, :], axis=2)).ravel(), n)
         schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
-        det = a * c - off ** 2
-
-        def c_inverse(x: np.ndarray) -> np.ndarray:  # C_i^-1 x_i for (N, 2) x
-            return np.stack([c * x[:, 0] - off * x[:, 1], a * x[:, 1] - off * x[:, 0]], axis=1) / det[:, None]
-
-        c_vec = np.einsum("nki,nk->ni", jl, res)  # J_l^T r
-        w_vec = c_inverse(c_vec)
-        rhs = -lin["g"] + Rows(b[:, :, 0] * w_vec[:, 0:1] + b[:, :, 1] * w_vec[:, 1:2], columns, 4 * n,
-                               cells).project(np.ones((len(res), 1)))[:, 0]
         d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
-        picked = d_net[columns]
-        bt_d = np.stack([np.sum(b[:, :, 0] * picked, axis=1), np.sum(b[:, :, 1] * picked, axis=1)], axis=1)
-        d_uv = -c_inverse(c_vec + bt_d)
-        return d_net[:3 * n].reshape(n, 3), d_net[3 * n:], d_uv
+        d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
+        d_uv = np.empty((len(lin["residual"]), 2))
+        for part, piece, scaled, _ in lin["parts"]:
+            q = self._point_terms(lin, part, piece, damping, frozen)
+            bt_d = np.sum(q["jl"] * (scaled @ d_control)[:, :, None], axis=1) + np.sum(
+                (scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
+            d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
+        return d_control, d_log_w, d_uv
 
 
 def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
                    control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                   log_bounds, iterations: int = 12, tolerance: float = 1e-6):
-    """Refined (control, weights, uv) and the rounds taken, started from the given ones."""
-    problem = JointProblem(layout, solver, points, inner_u, inner_v)
+                   log_bounds, iterations: int = 12, tolerance: float = 1e-6,
+                   point_weights: np.ndarray | None = None):
+    """Refined (control, weights, uv) and the rounds taken, started from the given ones;
+    ``point_weights`` (N,), all positive, weigh the points' squared distances."""
+    problem = JointProblem(layout, solver, points, inner_u, inner_v, point_weights)
     log_w = np.clip(np.log(weights), *log_bounds)
     uv = keep_in_domain(uv, layout.closed)
     ev = problem.evaluate(control, np.exp(log_w), uv)

@@ -1,75 +1,132 @@
-"""Gross outliers: points lying many robust standard deviations off the fitted surface.
+"""The robust loss: iteratively reweighted least squares with Tukey's biweight.
 
-A scan carries junk (flying pixels, stray returns, a piece of a neighbouring object)
-that least squares would follow. With d the points' foot-point distances to a fit, the
-residual scale is
+The local test (:mod:`psonurbs.fitting.outliers`) removes the junk that lies far from the
+surface its neighbours describe. What it cannot see (a flat piece of another object,
+junk a few sigmas off the surface) must not pull the fit either, so every solve weighs
+point i by
 
+    w_i = (1 - (d_i / (CUTOFF_SIGMAS sigma))^2)^2   (0 beyond),
     sigma = max(1.4826 median(d), RESOLUTION)
 
-(1.4826 median |r| estimates the standard deviation of a zero-mean normal residual r
-whatever the junk, as long as it is under half the points), and a point is an inlier
-while ``d <= OUTLIER_SIGMAS * sigma``. Ten sigmas never reject normal noise (the chance
-is about 1e-23) and leave a smooth fit's own approximation error alone (it stays
-within 8 sigmas on the benchmark clouds, whose residuals are that error alone), while
-junk in the bounding box lies hundreds of sigmas off. The floor keeps an exact fit,
-whose distances are evaluation noise, from rejecting anything. Rejected points are
-left out of the fit, not out of the reported metrics.
+with d_i its distance from the current fit (1.4826 median |r| estimates the standard
+deviation of a zero-mean normal residual r whatever the junk, as long as it is under
+half the points; the floor keeps an exact fit, whose distances are evaluation noise,
+from weighing anything down). Points of weight 0 are *left out* (``metrics.outliers``
+counts them with the local outliers); partial weights only make a point count less.
+
+Where the fit itself is wrong (a bump the net cannot resolve, a fold of the
+parametrisation), a whole neighbourhood lies far from it: those points are not junk,
+and leaving them out would hide the error. So a point on the main piece of surface
+(:class:`psonurbs.fitting.outliers.Neighbourhoods`) is judged against the larger of
+sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_i)``:
+it is left out only when it is far from the fit *and* from where its neighbours are.
+Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
+A point the local test vouched for (on the main piece, within a few sigmas of the
+surface its neighbours describe) is never left out: where the fit folds or tears between
+it and its neighbours, the loss may lower its say to ``VOUCHED_FLOOR``, not to nothing.
+A redescending weight lets no point pull without bound, so refitting with the new
+weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
+point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
+error stays within 8 on the benchmark clouds; the biweight gives it 0.99 of the weight
+at 1 sigma and 0.56 at 5.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .organise import RESOLUTION
+from .outliers import Neighbourhoods
 from .solve import RegularisedLeastSquares
 
-OUTLIER_SIGMAS = 10.0
-ROUNDS = 5  # refits without the rejected points until the inlier set stands still
+CUTOFF_SIGMAS = 10.0
+VOUCHED_FLOOR = 0.01  # the least weight of a point its neighbours vouch for
+ROUNDS = 8  # reweighted refits of the classical fit, at most
+WEIGHT_TOLERANCE = 1e-3  # the weights stand still: no weight moved more than this
 
 
-def inliers(distances: np.ndarray) -> np.ndarray:
-    """Mask of the points within ``OUTLIER_SIGMAS`` robust standard deviations."""
-    sigma = max(1.4826 * float(np.median(distances)), RESOLUTION)
-    return distances <= OUTLIER_SIGMAS * sigma
+def residual_scale(distances: np.ndarray) -> float:
+    """sigma: ``max(1.4826 median(d), RESOLUTION)``."""
+    return max(1.4826 * float(np.median(distances)), RESOLUTION)
 
 
-def classical_inliers(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
-                      uv: np.ndarray) -> np.ndarray:
-    """Inliers of the classical fit (uniform knots, unit weights, least squares) at the
-    initial parameters, refitted without the points it rejects until the set repeats.
+def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
+    """Tukey's biweight of every distance (N,), cut off at ``CUTOFF_SIGMAS`` times its scale
+    (sigma, or ``max(sigma, m_i)`` on the main piece with ``neighbourhoods``, the points
+    they vouch for kept at ``VOUCHED_FLOOR`` at least)."""
+    scale = residual_scale(distances)
+    if neighbourhoods is not None:
+        scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
+    u = np.minimum(distances / (CUTOFF_SIGMAS * scale), 1.0)
+    weights = (1.0 - u * u) ** 2
+    if neighbourhoods is not None:
+        weights = np.where(neighbourhoods.vouched, np.maximum(weights, VOUCHED_FLOOR), weights)
+    return weights
 
-    A kept point is judged by its leave-one-out residual (against the fit that did not
-    see it), a rejected one by its residual: junk where data are thin (an edge, a
-    corner) pulls the least-squares surface onto itself, not the fit without it.
+
+def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
+                      uv: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
+    """Point weights (N,) of the classical fit (uniform knots, unit weights) at the initial
+    parameters, reweighted until they stand still, from the trusted points (the others
+    start left out, with a weight to earn).
+
+    A point is judged by its leave-one-out residual (against the fit that did not see
+    it; a left-out point's is its residual): junk where data are thin (an edge, a corner)
+    pulls the least-squares surface onto itself, not the fit without it.
     """
-    weights = np.ones(layout.n_free)
-    rows = layout.rows(uv, weights)
-    keep = np.ones(len(points), bool)
+    rows = layout.rows(uv, np.ones(layout.n_free))
+    w = trusted_points(neighbourhoods, len(points)).astype(float)
     for _ in range(ROUNDS):
-        control, loo = solver.leave_one_out(rows.take(keep), points[keep])
-        dist = np.linalg.norm(rows @ control - points, axis=1)
-        dist[keep] = np.linalg.norm(loo, axis=1)
-        new = inliers(dist)
-        if np.array_equal(new, keep):
+        new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1), neighbourhoods)
+        done = np.max(np.abs(new - w)) <= WEIGHT_TOLERANCE
+        w = new
+        if done:
             break
-        keep = new
-    return keep
+    return w
 
 
-def refreshed_inliers(surface: NurbsSurface, points: np.ndarray, keep: np.ndarray,
-                      uv_kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The inliers of a better fit, and their foot-point parameters on it (the points
-    kept so far start from their own, the others from a global search)."""
+def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarray, uv_kept: np.ndarray,
+                      neighbourhoods: Neighbourhoods | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The weights (N,) on a better fit, and the foot-point parameters (N, 2) on it (the
+    points kept so far start from their own, the left-out ones from a global search)."""
     start = np.empty((len(points), 2))
     start[keep] = uv_kept
     if not keep.all():
         start[~keep] = closest_parameters(surface, points[~keep])[0]
     uv, dist = closest_parameters(surface, points, start)
-    new = inliers(dist)
-    return new, uv[new]
+    return biweights(dist, neighbourhoods), uv
+
+
+def loss_summary(weights: np.ndarray) -> dict:
+    """For the JSON: how many points the final solve left out (weight 0), how many it
+    counted less than half, and the mean weight of those it kept."""
+    kept = weights[weights > 0]
+    return {"left_out": int(np.sum(weights == 0)), "down_weighted": int(np.sum(kept < 0.5)),
+            "mean_weight": float(kept.mean()) if len(kept) else 0.0, "cutoff_sigmas": CUTOFF_SIGMAS}
+
+
+def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
+    """(N,) the points that may steer the parametrisation and start the first fit: those the
+    local test vouches for (all, when it judged nothing, or vouched for under half: a cloud
+    whose noise hides its structure at the scale of the neighbourhoods)."""
+    if neighbourhoods is None or 2 * int(neighbourhoods.vouched.sum()) < n:
+        return np.ones(n, bool)
+    return neighbourhoods.vouched
+
+
+def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
+    """(N, 2) parameters of all points from those of the trusted ones: each other point takes
+    its nearest trusted point's (a start; the first fit leaves it out until it earns a weight)."""
+    if trusted.all():
+        return uv_trusted
+    uv = np.empty((len(points), 2))
+    uv[trusted] = uv_trusted
+    uv[~trusted] = uv_trusted[cKDTree(points[trusted]).query(points[~trusted])[1]]
+    return uv
 
 
 def kept_sample(sample: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -15,6 +15,14 @@ The fit is a linear smoother ``X_hat = H X`` with ``H = R M^-1 R^T``, so the err
 point i of the fit that did not see point i is exact and cheap (no refit):
 ``e_i / (1 - h_ii)`` with ``h_ii = r_i^T M^-1 r_i``.
 
+With per-point weights w (N,) in [0, 1] (``point_weights``: a robust loss's weights, 0
+leaves a point out) the problem is ``min sum_i w_i |r_i P - x_i|^2 + lam |L P|^2`` with
+``M = R^T W R + lam L^T L`` (lam from ``tr(R^T W R)``). Taking point i out of it lowers M
+by ``w_i r_i r_i^T``, so the leave-one-out residual stays exact:
+``e_i / (1 - w_i h_ii)``, ``h_ii = r_i^T M^-1 r_i``. Both are the unweighted formulas on
+the rows scaled by ``sqrt(w_i)`` (the residual e_i on the unscaled ones). Without
+weights (None) every number is the unweighted one.
+
 R comes as :class:`psonurbs.geometry.rows.Rows` (m non-zeros per row, grouped by
 knot-span cell), so ``R^T R`` and the leverages h_ii are sums of small dense blocks.
 """
@@ -68,22 +76,41 @@ class RegularisedLeastSquares:
         system[np.diag_indices_from(system)] += 1e-12 * trace / len(gram)
         return system
 
-    def solve(self, rows: Rows, data: np.ndarray) -> np.ndarray:
+    def solve(self, rows: Rows, data: np.ndarray, point_weights: np.ndarray | None = None) -> np.ndarray:
         """Control points (n, 3); raises LinAlgError if the system is singular."""
+        rows, data = weighted(rows, data, point_weights)
         factor = la.cho_factor(self.normal_matrix(rows.gram()), check_finite=False)
         return la.cho_solve(factor, rows.project(data), check_finite=False)
 
-    def leave_one_out(self, rows: Rows, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def leave_one_out(self, rows: Rows, data: np.ndarray,
+                      point_weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Control points (n, 3), and each point's residual (N, 3) under the fit that did
-        not see it (exact LOO: ``e_i / (1 - h_ii)``)."""
-        blocks = rows.blocks()
+        not see it (exact LOO: ``e_i / (1 - w_i h_ii)``; a point of weight 0 keeps e_i)."""
+        scaled, scaled_data = weighted(rows, data, point_weights)
+        blocks = scaled.blocks()
         factor = la.cho_factor(self.normal_matrix(blocks.gram()), check_finite=False)
-        control = la.cho_solve(factor, rows.project(data), check_finite=False)
+        control = la.cho_solve(factor, scaled.project(scaled_data), check_finite=False)
         inverse = la.cho_solve(factor, np.eye(rows.n_columns), check_finite=False)
-        leverage = blocks.quadratic_forms(inverse)
+        leverage = blocks.quadratic_forms(inverse)  # w_i h_ii
         return control, (rows @ control - data) / np.maximum(1.0 - leverage, 1e-12)[:, None]
 
-    def leave_one_out_rmse(self, rows: Rows, data: np.ndarray) -> float:
-        """RMSE of each point's residual under the fit that did not see it (exact LOO)."""
-        residual = self.leave_one_out(rows, data)[1]
-        return float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
+    def leave_one_out_rmse(self, rows: Rows, data: np.ndarray, point_weights: np.ndarray | None = None) -> float:
+        """RMSE of each point's residual under the fit that did not see it (exact LOO),
+        weighted by the point weights (the robust loss's mean)."""
+        residual = self.leave_one_out(rows, data, point_weights)[1]
+        return weighted_rms(np.sum(residual ** 2, axis=1), point_weights)
+
+
+def weighted(rows: Rows, data: np.ndarray, point_weights: np.ndarray | None) -> tuple[Rows, np.ndarray]:
+    """Rows and data scaled by ``sqrt(w_i)``: their least squares is the weighted one."""
+    if point_weights is None:
+        return rows, data
+    root = np.sqrt(point_weights)
+    return rows.scaled(root), data * root[:, None]
+
+
+def weighted_rms(squares: np.ndarray, point_weights: np.ndarray | None) -> float:
+    """``sqrt(sum w_i d_i^2 / sum w_i)`` of squared distances (N,); the plain RMS without weights."""
+    if point_weights is None:
+        return float(np.sqrt(np.mean(squares)))
+    return float(np.sqrt(np.sum(point_weights * squares) / np.sum(point_weights)))

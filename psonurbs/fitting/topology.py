@@ -10,6 +10,9 @@ direction needs data all the way round; a sphere needs data near both poles; a
 cylinder needs rims, not ends that close to a point) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
 leave-one-out error. Every candidate's score or reason for rejection is reported.
+The open candidate's first parameters follow ``parametrisation`` (plane or intrinsic,
+:mod:`psonurbs.fitting.open_parameters`), intrinsic ones corrected from coarse to fine
+(:mod:`psonurbs.fitting.coarse_to_fine`).
 """
 from __future__ import annotations
 
@@ -19,7 +22,10 @@ import numpy as np
 
 from psonurbs.geometry.net import NetLayout
 
+from .checks import check_fit
+from .coarse_to_fine import coarse_to_fine
 from .hybrid import KnotWeightSearch
+from .open_parameters import parametrise_open_patch
 from .parametrise import Parametrisation, parametrise
 from .solve import RegularisedLeastSquares
 
@@ -82,18 +88,35 @@ def oriented(par: Parametrisation, layout: NetLayout, points: np.ndarray, config
 
 
 def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, config) -> Parametrisation:
-    """First parameters of all points for a given topology (orientation settled on ``sample``)."""
-    par = parametrise(points, topology)
+    """First parameters of all points for a given topology (orientation settled on
+    ``sample``); intrinsic ones of an open patch corrected from coarse to fine."""
+    par = parametrise_open_patch(points, config.parametrisation) if topology == "open" else parametrise(points, topology)
     layout = layout_for(topology, config.net_size, config.degrees)
     if oriented(Parametrisation(par.uv[sample], par.info), layout, points[sample], config).info.get("swapped"):
         par = par.swapped()
+    if par.info["method"] == "intrinsic":
+        uv, levels = coarse_to_fine(layout, points, par.uv, config.smoothing)
+        par = Parametrisation(uv, {**par.info, "coarse_to_fine": levels})
     return par
+
+
+def classical_surface(layout: NetLayout, par: Parametrisation, points: np.ndarray, config):
+    """The classical fit's surface (uniform knots, unit weights, least squares)."""
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
+    weights = np.ones(layout.n_free)
+    return layout.surface(solver.solve(layout.rows(par.uv, weights), points), weights)
 
 
 def choose_topology(points: np.ndarray, sample: np.ndarray, config,
                     log: Callable[[str], None] | None = None) -> tuple[str, Parametrisation, dict]:
-    """The topology that fits the cloud best, its parametrisation and every candidate's score."""
-    scores, best = {}, (np.inf, None, None)
+    """The topology that fits the cloud best, its parametrisation and every candidate's score.
+
+    A candidate whose classical surface fails a self-check (:mod:`psonurbs.fitting.checks`)
+    is rejected: an open patch laid over a tube caps its end and folds there, a torus
+    forced onto a curled sheet flaps far outside it, both while passing near every
+    point. If every candidate fails, the least error is kept all the same.
+    """
+    scores, candidates, suspect = {}, {}, {}
     for topology in LAYOUTS:
         if topology == "sphere" and config.net_size[1] < 3:
             scores[topology] = {"rejected": "net_size along v is below 3"}
@@ -104,8 +127,15 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
             scores[topology] = {"rejected": reason}
             continue
         layout = layout_for(topology, config.net_size, config.degrees)
-        error = classical_error(layout, Parametrisation(par.uv[sample], par.info), points[sample], config)
+        on_sample = Parametrisation(par.uv[sample], par.info)
+        error = classical_error(layout, on_sample, points[sample], config)
         scores[topology] = {"classical_error_relative": float(error)}
-        if error < best[0]:
-            best = (error, topology, par)
-    return best[1], best[2], scores
+        if topology == "open":
+            scores[topology]["parametrisation"] = par.info["method"]
+        warnings = check_fit(classical_surface(layout, on_sample, points[sample], config), points[sample]).warnings
+        (suspect if warnings else candidates)[topology] = (error, par)
+        if warnings:
+            scores[topology]["rejected"] = "suspect: " + "; ".join(warnings)
+    pool = candidates or suspect
+    best = min(pool, key=lambda t: (pool[t][0], list(LAYOUTS).index(t)))
+    return best, pool[best][1], scores

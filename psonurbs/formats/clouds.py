@@ -174,16 +174,18 @@ def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
     except UnicodeDecodeError:
         raise InputError(f"{name}: not a text point cloud (the file contains binary data)") from None
 
-    # Fast path: numpy's C parser. Anything it does not like (a .pts count line,
-    # ragged rows, a bad token) goes through the slow path, which either reads it
-    # or says exactly which line is wrong.
+    # Fast path: numpy's C parser (a .pts file's count line set aside). Anything it
+    # does not like (too few columns, a bad token) goes through the slow path, which
+    # either reads it or says exactly which line is wrong.
+    lines = text.replace(",", " ").splitlines()
+    if suffix == ".pts":
+        lines = _after_count_line(lines)
     try:
         import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            points = np.loadtxt(text.replace(",", " ").splitlines(), usecols=(0, 1, 2),
-                                comments="#", ndmin=2, dtype=np.float64)
+            points = np.loadtxt(lines, usecols=(0, 1, 2), comments="#", ndmin=2, dtype=np.float64)
         return points.reshape(-1, 3)
     except (ValueError, IndexError):
         pass
@@ -213,3 +215,14 @@ def _read_text(path: Path, name: str, suffix: str) -> np.ndarray:
         more = f" (and {len(errors) - 1} more bad lines)" if len(errors) > 1 else ""
         raise InputError(f"{name}: malformed point data at {errors[0]}{more}")
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def _after_count_line(lines: list[str]) -> list[str]:
+    """The lines after a .pts file's point count (its first data line, a lone integer),
+    or all of them if it has none."""
+    for k, line in enumerate(lines):
+        tokens = line.split("#", 1)[0].split()
+        if tokens:
+            return lines[k + 1:] if len(tokens) == 1 and tokens[0].isdigit() else lines
+    return lines
+

@@ -85,7 +85,9 @@ def design_matrix(x: np.ndarray, knots: np.ndarray, degree: int, derivative: int
     if len(x) == 0:
         return sp.csr_array((np.zeros(0), np.zeros(0, np.int32), np.zeros(1, np.int32)), shape=(0, n))
     if derivative == 0:
-        return BSpline.design_matrix(x, knots, degree)
+        # x is inside the domain already: scipy's own bounds check (a Python min and max
+        # over x) is skipped, the values are the same
+        return BSpline.design_matrix(x, knots, degree, extrapolate=True)
     if degree == 0:
         lower_vals = np.zeros((len(x), 0))
         first = np.searchsorted(knots, x, side="right") - 1

@@ -17,6 +17,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .basis import clamped_knots, design_matrix, tensor_basis
+from .chunks import chunks
+
+EVALUATION_CHUNK = 1 << 15  # points evaluated together: some 20 MB of basis and derivative arrays
 
 
 @dataclass
@@ -69,12 +72,25 @@ class NurbsSurface:
         return self.derivatives(u, v, first=False)[0]
 
     def derivatives(self, u: np.ndarray, v: np.ndarray, first: bool = True, second: bool = False):
-        """S; with ``first`` also S_u, S_v; with ``second`` also S_uu, S_uv, S_vv.
+        """S; with ``first`` also S_u, S_v; with ``second`` also S_uu, S_uv, S_vv; each (N, 3).
 
         Quotient rule on S = A / w (A the weighted net's spline, w the weights' spline):
         S_u = (A_u - w_u S) / w,  S_uu = (A_uu - 2 w_u S_u - w_uu S) / w,
         S_uv = (A_uv - w_u S_v - w_v S_u - w_uv S) / w.
+        Evaluated ``EVALUATION_CHUNK`` points at a time (the basis matrices of a chunk
+        are its only intermediate arrays); every point's values are its own.
         """
+        u, v = np.asarray(u, float), np.asarray(v, float)
+        if len(u) <= EVALUATION_CHUNK:
+            return self._derivatives(u, v, first, second)
+        count = 6 if second else 3 if first else 1
+        out = tuple(np.empty((len(u), 3)) for _ in range(count))
+        for part in chunks(len(u), EVALUATION_CHUNK):
+            for whole, piece in zip(out, self._derivatives(u[part], v[part], first, second)):
+                whole[part] = piece
+        return out
+
+    def _derivatives(self, u: np.ndarray, v: np.ndarray, first: bool, second: bool):
         w = self.weights.reshape(-1)
         aw = (self.control_points * self.weights[..., None]).reshape(-1, 3)
         orders = range(3 if second else 2 if first else 1)

@@ -16,10 +16,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .chunks import chunks
 from .nurbs import NurbsSurface
 
 LINE_SEARCH_HALVINGS = 8
 PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
+FOOT_POINT_CHUNK = 1 << 15  # points searched together: some 30 MB of derivatives and trial arrays
 
 
 def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
@@ -29,24 +31,42 @@ def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
     return out
 
 
-def nearest_on_grid(surface: NurbsSurface, points: np.ndarray, resolution: int) -> np.ndarray:
-    """Parameters of the nearest vertex of a resolution x resolution tessellation."""
-    us, vs = surface.parameter_grid(resolution, resolution)
-    grid = surface.evaluate_grid(us, vs).reshape(-1, 3)
-    _, k = cKDTree(grid).query(points)
-    return np.stack([us[k // resolution], vs[k % resolution]], axis=1)
+class GridStart:
+    """Starts for a global search: the parameters of the nearest vertex of a resolution x
+    resolution tessellation (a KD-tree over it, built once per surface and used for
+    every chunk of points)."""
+
+    def __init__(self, surface: NurbsSurface, resolution: int):
+        self.us, self.vs = surface.parameter_grid(resolution, resolution)
+        self.resolution = resolution
+        self.tree = cKDTree(surface.evaluate_grid(self.us, self.vs).reshape(-1, 3))
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        _, k = self.tree.query(points)
+        return np.stack([self.us[k // self.resolution], self.vs[k % self.resolution]], axis=1)
 
 
 def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray | None = None,
                        iterations: int = 10, resolution: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Foot-point parameters and distances of ``points`` on ``surface``.
+    """Foot-point parameters (N, 2) and distances (N,) of ``points`` on ``surface``.
 
     With ``uv`` None the search starts from a tessellation (global); otherwise from ``uv``.
+    The points are taken ``FOOT_POINT_CHUNK`` at a time (each point's search is its own).
     """
     closed = (surface.closed_u, surface.closed_v)
+    start = None
     if uv is None:
-        res = resolution or int(np.clip(32 * max(surface.shape), 128, 512))
-        uv = nearest_on_grid(surface, points, res)
+        start = GridStart(surface, resolution or int(np.clip(32 * max(surface.shape), 128, 512)))
+    out_uv, out_dist = np.empty((len(points), 2)), np.empty(len(points))
+    for part in chunks(len(points), FOOT_POINT_CHUNK):
+        first = start(points[part]) if start is not None else uv[part]
+        out_uv[part], out_dist[part] = newton_foot_points(surface, points[part], first, closed, iterations)
+    return out_uv, out_dist
+
+
+def newton_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, closed: tuple[bool, bool],
+                       iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded Newton steps with halving from ``uv`` until every point stops moving."""
     uv = keep_in_domain(uv, closed)
     dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
     active = np.arange(len(points))

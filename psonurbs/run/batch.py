@@ -33,8 +33,9 @@ from psonurbs.formats.clouds import Cloud, load_cloud
 
 from .cluster import Scheduler
 from .gate import Gate
+from .heap import keep_freed_memory
 from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, Row, printable, worker_lost_row
+from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, SUSPECT, Row, printable, worker_lost_row
 from .workers import pool_run
 
 __all__ = ["FitOutcome", "fit_cloud", "fit_job", "preflight", "read_job", "run_batch"]
@@ -147,6 +148,7 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         row.rmse_relative = _number(metrics.get("rmse_relative"))
         row.max_error_relative = _number(metrics.get("max_error_relative"))
         row.notes = notes
+        row.warnings = list(result.warnings)
         if trim is not None and "3dm" in formats:
             from psonurbs.formats.cad import TRIM_3DM_NOTE
 
@@ -220,9 +222,11 @@ def _finish(outcome: FitOutcome, out_dir: Path, gate: Gate) -> Row:
         row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
         row.detail = traceback.format_exc()
         return row
-    reason = gate.check(outcome.metrics) if outcome.metrics else ""
+    reason = gate.check(outcome.metrics, row.warnings) if outcome.metrics else ""
     if reason:
         row.status = GATE
+    elif row.warnings:
+        row.status = SUSPECT
     row.message = "; ".join([m for m in [reason, *row.notes] if m])
     return row
 
@@ -285,6 +289,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *, formats: Seque
                         lambda outcome: _finish(outcome, out_dir, gate))
         return rows  # type: ignore[return-value]
     if workers <= 1 or len(todo) <= 1:
+        keep_freed_memory()  # this process fits
         for k in range(len(jobs)):
             if k in pending_reports:
                 done(k, pending_reports[k])

@@ -1,4 +1,5 @@
-"""The regression gate: bounds on a fit's RMSE (``--max-rmse``, ``--max-rmse-rel``)."""
+"""The regression gate: bounds on a fit's RMSE (``--max-rmse``, ``--max-rmse-rel``), and
+optionally its self-checks (``--fail-suspect``)."""
 from __future__ import annotations
 
 import math
@@ -9,14 +10,19 @@ __all__ = ["Gate"]
 
 @dataclass(frozen=True)
 class Gate:
-    """Regression bounds: RMSE in cloud units, and relative to the bounding-box diagonal."""
+    """Regression bounds: RMSE in cloud units, and relative to the bounding-box diagonal;
+    with ``fail_suspect``, a fit that failed a self-check (``warnings``) fails the gate too."""
 
     max_rmse: float | None = None
     max_rmse_rel: float | None = None
+    fail_suspect: bool = False
 
-    def check(self, metrics: dict) -> str:
+    def check(self, metrics: dict, warnings: list[str] = ()) -> str:
         """'' when the fit passes, else the reason (for the row's message)."""
         reasons = []
+        if self.fail_suspect and warnings:
+            reasons.append(f"suspect fit ({len(warnings)} self-check{'s' if len(warnings) > 1 else ''} failed) "
+                           "with --fail-suspect")
         rmse, rel = metrics.get("rmse", math.nan), metrics.get("rmse_relative", math.nan)
         if self.max_rmse is not None and not rmse <= self.max_rmse:
             reasons.append(f"rmse {rmse:.3e} > --max-rmse {self.max_rmse:g}")
@@ -25,4 +31,4 @@ class Gate:
         return "; ".join(reasons)
 
     def as_dict(self) -> dict:
-        return {"max_rmse": self.max_rmse, "max_rmse_rel": self.max_rmse_rel}
+        return {"max_rmse": self.max_rmse, "max_rmse_rel": self.max_rmse_rel, "fail_suspect": self.fail_suspect}

@@ -1,10 +1,11 @@
 """What happened to each cloud of a run: statuses, exit codes, the summary files.
 
-Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0),
-``gate-exceeded`` (3), ``bad-input`` (2), ``worker-lost`` (4: the process fitting the
-cloud died, e.g. killed for memory; :func:`worker_lost_row`), ``internal-error`` (1);
-interrupted runs exit with 130 (Ctrl-C) or 143 (SIGTERM). When several apply the most
-severe wins: 143 > 130 > 1 > 4 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
+Statuses and the exit code they lead to (:func:`exit_code`): ``ok`` (0), ``suspect``
+(0: fitted, files written, but a self-check failed; with ``--fail-suspect`` the gate turns
+it into ``gate-exceeded``), ``gate-exceeded`` (3), ``bad-input`` (2), ``worker-lost`` (4: the
+process fitting the cloud died, e.g. killed for memory; :func:`worker_lost_row`),
+``internal-error`` (1); interrupted runs exit with 130 (Ctrl-C) or 143 (SIGTERM). When
+several apply the most severe wins: 143 > 130 > 1 > 4 > 2 > 3 > 0. :func:`write_summary` writes ``summary.csv`` and
 ``summary.json`` atomically, one row per cloud in the order given.
 """
 from __future__ import annotations
@@ -22,8 +23,8 @@ from .gate import Gate
 
 __all__ = [
     "Row", "exit_code", "write_summary", "render_summary_csv", "render_summary_json",
-    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "GATE", "BAD_INPUT", "INTERNAL", "WORKER_LOST", "STATUSES",
-    "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_WORKER_LOST", "EXIT_INTERRUPTED",
+    "SUMMARY_COLUMNS", "SUMMARY_NAMES", "OK", "SUSPECT", "GATE", "BAD_INPUT", "INTERNAL", "WORKER_LOST",
+    "STATUSES", "EXIT_OK", "EXIT_INTERNAL", "EXIT_INPUT", "EXIT_GATE", "EXIT_WORKER_LOST", "EXIT_INTERRUPTED",
     "EXIT_TERMINATED", "Terminated", "raise_terminated", "worker_lost_row",
 ]
 
@@ -46,11 +47,11 @@ def raise_terminated(signum, frame) -> None:
     raise Terminated()
 
 
-OK, GATE, BAD_INPUT, INTERNAL = "ok", "gate-exceeded", "bad-input", "internal-error"
+OK, SUSPECT, GATE, BAD_INPUT, INTERNAL = "ok", "suspect", "gate-exceeded", "bad-input", "internal-error"
 WORKER_LOST = "worker-lost"
-STATUSES = (OK, GATE, BAD_INPUT, WORKER_LOST, INTERNAL)
-_STATUS_EXIT = {OK: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT, WORKER_LOST: EXIT_WORKER_LOST,
-                INTERNAL: EXIT_INTERNAL}
+STATUSES = (OK, SUSPECT, GATE, BAD_INPUT, WORKER_LOST, INTERNAL)
+_STATUS_EXIT = {OK: EXIT_OK, SUSPECT: EXIT_OK, GATE: EXIT_GATE, BAD_INPUT: EXIT_INPUT,
+                WORKER_LOST: EXIT_WORKER_LOST, INTERNAL: EXIT_INTERNAL}
 # a lost worker is worse than an unusable file (the cloud may be fine and was not fitted:
 # the machine needs attention) and not as bad as a bug (a retry with more memory may pass)
 _SEVERITY = [EXIT_OK, EXIT_GATE, EXIT_INPUT, EXIT_WORKER_LOST, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED]
@@ -76,6 +77,7 @@ class Row:
     status: str = OK
     message: str = ""
     notes: list[str] = field(default_factory=list)  # the fit's notes (in message too)
+    warnings: list[str] = field(default_factory=list)  # the fit's failed self-checks (in notes too)
     detail: str = ""  # traceback of an internal error; never written
 
     def summary(self) -> dict:

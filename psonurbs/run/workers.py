@@ -19,6 +19,8 @@ import traceback
 from collections import deque
 from typing import Callable
 
+from .heap import keep_freed_memory
+
 __all__ = ["pool_run", "describe_exit"]
 
 
@@ -29,10 +31,11 @@ _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 def _worker_init() -> None:
     """Each worker: Ctrl-C is the parent's business (it started with SIGINT blocked, see
     :class:`_Worker`; now ignored, then unblocked); it ends with its parent; one BLAS/OpenMP
-    thread."""
+    thread; freed memory kept (:mod:`psonurbs.run.heap`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     _end_with_parent()
+    keep_freed_memory()
     for name in _THREAD_VARIABLES:
         os.environ[name] = "1"
     try:

@@ -1,0 +1,97 @@
+#!/usr/bin/env python3
+"""Swarm fitness evaluations per second: one particle at a time against the batched fitness.
+
+    python benchmarks/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20]
+
+For each cubic open net (8 x 8, 12 x 12, 20 x 20 by default) it builds the swarm's
+fitness on a Franke surface sampled at ``--points`` scattered points (noise 0.2% of the
+diagonal), takes ``--particles`` particles of the initial swarm (the classical fit,
+then particles spread towards random knots, weights and smoothing), and times
+
+    before  ``[search.error(x) for x in swarm]``: one particle at a time, scipy design
+            matrices and a dense solve per particle (the fitness of the swarm until now)
+    after   ``search.fitness(swarm)``: all particles together (stacked_rows + the banded
+            stacked solve)
+
+in interleaved rounds (before, after, before, ...), one BLAS thread and glibc keeping freed
+memory as in a fit (:mod:`psonurbs.run.heap`). The
+best round of each is reported, as wall time and as process CPU time (on a busy machine
+the CPU time is the steadier figure), with the largest relative difference between the
+two fitness values (they compute the same leave-one-out RMSE).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from psonurbs.fitting.hybrid import KnotWeightSearch  # noqa: E402
+from psonurbs.fitting.solve import RegularisedLeastSquares  # noqa: E402
+from psonurbs.geometry.net import NetLayout  # noqa: E402
+from psonurbs.run.heap import keep_freed_memory  # noqa: E402
+
+
+def franke(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    x, y = 9 * u, 9 * v
+    return (0.75 * np.exp(-((x - 2) ** 2 + (y - 2) ** 2) / 4) + 0.75 * np.exp(-(x + 1) ** 2 / 49 - (y + 1) / 10)
+            + 0.5 * np.exp(-((x - 7) ** 2 + (y - 3) ** 2) / 4) - 0.2 * np.exp(-(x - 4) ** 2 - (y - 7) ** 2))
+
+
+def search_for(net: int, n_points: int, rng: np.random.Generator) -> KnotWeightSearch:
+    uv = rng.random((n_points, 2))
+    points = np.column_stack([uv, franke(uv[:, 0], uv[:, 1])])
+    points += 0.002 * np.sqrt(3.0) * rng.normal(size=points.shape)
+    layout = NetLayout((net, net), (3, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6, layout.constraint_operator())
+    return KnotWeightSearch(layout, solver, points, uv, True, 0.2, (0.2, 5.0))
+
+
+def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tuple[dict, dict]:
+    """Best (wall, cpu) seconds over interleaved rounds of each way, and the values."""
+    runs = {"before": lambda: [search.error(x) for x in swarm], "after": lambda: search.fitness(swarm)}
+    best = {name: [np.inf, np.inf] for name in runs}
+    values = {}
+    with threadpool_limits(limits=1):
+        runs["after"]()  # warm-up: what is built once per search
+        for _ in range(rounds):
+            for name, run in runs.items():
+                wall, cpu = time.perf_counter(), time.process_time()
+                values[name] = np.asarray(run())
+                wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+                best[name] = [min(best[name][0], wall), min(best[name][1], cpu)]
+    return best, values
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--points", type=int, default=1500)
+    ap.add_argument("--particles", type=int, default=40)
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--nets", type=int, nargs="*", default=[8, 12, 20])
+    args = ap.parse_args(argv)
+    keep_freed_memory()  # as a fitting process does (psonurbs.run.heap)
+    print(f"{args.points} points, {args.particles} particles, best of {args.rounds} interleaved rounds, 1 thread")
+    print("| net | before ms/eval (wall, cpu) | after ms/eval (wall, cpu) | before evals/s | after evals/s "
+          "| speed-up (wall, cpu) | max rel. diff |")
+    print("|---|---|---|---|---|---|---|")
+    for net in args.nets:
+        rng = np.random.default_rng(net)
+        search = search_for(net, args.points, rng)
+        swarm = search.initial_swarm(args.particles, rng)
+        best, values = best_rounds(search, swarm, args.rounds)
+        per_eval = {k: [1e3 * t / args.particles for t in v] for k, v in best.items()}
+        diff = float(np.max(np.abs(values["after"] / values["before"] - 1.0)))
+        b, a = per_eval["before"], per_eval["after"]
+        print(f"| {net} x {net} | {b[0]:.3f}, {b[1]:.3f} | {a[0]:.3f}, {a[1]:.3f} | {1e3 / b[0]:.0f} | "
+              f"{1e3 / a[0]:.0f} | {b[0] / a[0]:.1f}x, {b[1] / a[1]:.1f}x | {diff:.1e} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

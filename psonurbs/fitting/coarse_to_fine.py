@@ -1,0 +1,81 @@
+"""Parameters corrected from coarse to fine: fit a coarse net, move the parameters to its
+foot points, refine the net by knot insertion towards the configured one, correct again.
+
+A first parametrisation that is only roughly right (an unrolled graph: a few per cent of
+stretch, a wobble at the scale of the neighbourhoods) is followed faithfully by a fine
+net, and parameter correction on it barely moves: the fine net bends to the wrong
+parameters instead. A coarse net cannot bend like that, so its foot points carry the
+parameters towards the surface's own; each finer net then starts from parameters that
+only need a finer correction.
+
+The levels are nested: the inner knots of each are a subset of the next one's (the
+configured uniform knots at the end), so every coarse surface lies in the finer spline
+space (knot insertion) and each level's least-squares fit can only be closer to the
+data than the last one's. No point is left out here: a coarse net's own approximation
+error is not noise, and the robust test (:mod:`psonurbs.fitting.robust`) would take it
+for outliers at the data's edges; gross outliers are left out later, on the fine net.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from psonurbs.geometry.basis import uniform_inner_knots
+from psonurbs.geometry.net import NetLayout
+
+from .polish import polish
+from .solve import RegularisedLeastSquares
+
+LEVEL_ROUNDS = 20  # parameter-correction rounds per level
+
+
+@dataclass(frozen=True)
+class Level:
+    """One net of the ladder: its inner knots in both directions."""
+
+    inner_u: np.ndarray
+    inner_v: np.ndarray
+
+    def layout(self, fine: NetLayout) -> NetLayout:
+        p, q = fine.degrees
+        return NetLayout((len(self.inner_u) + p + 1, len(self.inner_v) + q + 1), fine.degrees)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (len(self.inner_u), len(self.inner_v))
+
+
+def coarser(knots: np.ndarray) -> np.ndarray:
+    """Half as many knots, fewer by one, chosen among ``knots``: the ones nearest to the
+    uniform positions of that many (so the coarse space lies in the fine one)."""
+    count = (len(knots) - 1) // 2
+    if count <= 0:
+        return knots[:0]
+    nearest = np.abs(knots[None, :] - uniform_inner_knots(count)[:, None]).argmin(axis=1)
+    return knots[np.unique(nearest)]
+
+
+def ladder(layout: NetLayout) -> list[Level]:
+    """The nested levels from a single Bezier patch up to ``layout``'s uniform knots."""
+    u, v = (uniform_inner_knots(c) for c in layout.inner_counts)
+    levels = [Level(u, v)]
+    while len(u) or len(v):
+        u, v = coarser(u), coarser(v)
+        levels.append(Level(u, v))
+    return levels[::-1]
+
+
+def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smoothing: float,
+                   rounds: int = LEVEL_ROUNDS) -> tuple[np.ndarray, list[dict]]:
+    """Parameters (N, 2) of ``points`` corrected on each level of :func:`ladder` (open
+    layouts), and per level its net size, rounds taken and RMSE (normalised units)."""
+    report = []
+    for level in ladder(layout):
+        net = level.layout(layout)
+        solver = RegularisedLeastSquares(net.smoothness_operator(), smoothing)
+        _, surface, uv, steps = polish(net, solver, points, uv, np.ones(net.n_free), level.inner_u, level.inner_v,
+                                       rounds)
+        rmse = float(np.sqrt(np.mean(np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1))))
+        report.append({"net": list(net.size), "rounds": int(steps), "rmse": rmse})
+    return uv, report

@@ -1,0 +1,98 @@
+"""First parameters of an open patch: a plane projection where the cloud is a proper
+height field over the plane, the intrinsic embedding otherwise (``parametrisation``).
+
+``plane`` is :func:`psonurbs.fitting.parametrise.parametrise_open` (the plane the surface
+faces most squarely), ``intrinsic`` is :func:`psonurbs.fitting.intrinsic.parametrise_intrinsic`
+(the cloud's own graph laid flat). ``auto`` keeps the plane unless one of two things
+shows that the projection misrepresents the surface:
+
+* **edge-on or folded**: with ``n`` the local normals and ``d`` the plane's normal, the
+  share of the surface's area where ``|n . d| < cos 80 deg`` is above ``EDGE_ON_SHARE``.
+  Where a surface folds over the plane its normal passes edge-on; where it turns
+  vertical (a shell's sides) the projection squeezes it more than 5.8 times. The share
+  is of area (each point weighted by the square of its neighbourhood radius), so
+  uneven sampling does not hide a sparse steep part; ``|n . d|`` needs no orientation,
+  so a stray's wrong normal counts only as itself.
+* **the footprint fills less**: the intrinsic parameters occupy at least ``FILL_MARGIN``
+  more of the cells of the unit square than the projection (a twisted strip projects
+  onto a bow tie: the square's corners would be extrapolated). Little is enough: a strip
+  twisted by 90 degrees leaves 5% of the square empty, and its fit over the plane is 25
+  times farther from the true surface than over the intrinsic parameters
+  (``benchmarks/unseen.py``).
+
+A height field over a rectangle, steep flanks and all, projects onto exactly its
+rectangle, which the unrolled surface (whose boundary curves where the surface
+climbs) never fills better; a plate over an ellipse fills both alike. Ties go to
+the plane, whose parameters of a height field need no correction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .intrinsic import embedding_sample, parametrise_intrinsic, surface_graph
+from .parametrise import Parametrisation, cell_counts, parametrise_open
+
+METHODS = ("auto", "plane", "intrinsic")
+EDGE_ON = float(np.cos(np.radians(80.0)))  # |n . d| below this: seen edge-on, squeezed over 5.8 times
+EDGE_ON_SHARE = 0.05  # of the surface's area that may be seen edge-on (noise, strays, a rim)
+FILL_MARGIN = 0.03  # of the unit square's cells: above the jitter of a sampled boundary (8 of 256 cells)
+
+
+@dataclass(frozen=True)
+class OpenChoice:
+    """The evidence behind ``auto``: how much of the surface the plane sees edge-on and
+    how much of the unit square each parametrisation fills."""
+
+    edge_on_share: float
+    fill_plane: float
+    fill_intrinsic: float
+    method: str
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"edge_on_share": self.edge_on_share, "fill_plane": self.fill_plane,
+                "fill_intrinsic": self.fill_intrinsic, "reason": self.reason}
+
+
+def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray) -> float:
+    """Share of the area (``areas`` per point) whose normal is within 10 degrees of
+    perpendicular to ``direction``."""
+    return float(np.sum(areas[np.abs(normals @ direction) < EDGE_ON]) / np.sum(areas))
+
+
+def fill(uv: np.ndarray, cells: int) -> float:
+    """Share of the cells x cells grid on [0, 1]^2 holding a point."""
+    return float(np.mean(cell_counts(uv, cells) > 0))
+
+
+def choose(edge_on: float, fill_plane: float, fill_intrinsic: float) -> OpenChoice:
+    if edge_on > EDGE_ON_SHARE:
+        return OpenChoice(edge_on, fill_plane, fill_intrinsic, "intrinsic",
+                          f"{edge_on:.0%} of the surface is seen edge-on from the plane (folds or turns vertical)")
+    if fill_intrinsic >= fill_plane + FILL_MARGIN:
+        return OpenChoice(edge_on, fill_plane, fill_intrinsic, "intrinsic",
+                          f"the projection fills {fill_plane:.0%} of the parameter square, "
+                          f"the intrinsic parameters {fill_intrinsic:.0%}")
+    return OpenChoice(edge_on, fill_plane, fill_intrinsic, "plane", "a height field over the plane")
+
+
+def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametrisation:
+    """First (u, v) in [0, 1]^2 of an open patch by ``method`` (auto | plane | intrinsic);
+    ``info["method"]`` says which was used and, for auto, ``info["choice"]`` why."""
+    if method == "plane":
+        return parametrise_open(points)
+    sample = embedding_sample(len(points))
+    graph = surface_graph(points[sample])
+    intrinsic = parametrise_intrinsic(points, graph)
+    if method == "intrinsic":
+        return intrinsic
+    plane = parametrise_open(points)
+    areas = graph.lengths[:, -1] ** 2  # ~ the surface area each point stands for
+    part = graph.component
+    cells = int(np.clip(np.sqrt(len(sample) / 8.0), 2, 16))
+    choice = choose(edge_on_share(graph.normals[part], areas[part], np.asarray(plane.info["normal"])),
+                    fill(plane.uv[sample], cells), fill(intrinsic.uv[sample], cells))
+    chosen = intrinsic if choice.method == "intrinsic" else plane
+    return Parametrisation(chosen.uv, {**chosen.info, "choice": choice.to_dict()})

@@ -1,0 +1,135 @@
+"""Whether the swarm's knots beat the classical ones: paired tests on points it never saw.
+
+Among thousands of particles, the least leave-one-out error on one sample is an
+optimistic pick: on noisy data some knots and weights fit that sample's noise. So the
+swarm's best and the classical start (uniform knots, unit weights) are both fitted to
+the swarm's points and half of the others, and compared on the other half. With
+``d_i = e_swarm,i^2 - e_classical,i^2`` the paired difference of squared errors at
+held-out point i (the noise common to both cancels in it) and
+``z = mean(d) / (sd(d) / sqrt(n))``, the swarm is kept only if
+
+* at the first parameters, where the swarm chose its knots, it predicts the held-out
+  points better by more than ``Z`` standard errors (``z < -Z``): the gain is real, not
+  the sample's noise; and
+* once both are polished (parameters moved to foot points), it is still closer to them
+  by more than ``Z`` standard errors (``z < -Z``): the gain survives the parameter
+  correction (knots chosen at the first parameters can lose it once the points slide
+  to their foot points); and its surface is not significantly farther from the data
+  (``z < Z`` over a grid of surface samples, each one's distance to the nearest point
+  of the cloud): the gain does not come with a surface that overshoots the data.
+
+Point-to-surface distances see only where the points are. A polish of uniform knots on
+a steep step slides the points off a fold the surface makes, and the fold is invisible
+in them; a surface that extrapolates farther past the data's edges is invisible too.
+The surface-to-data distances see both. A difference within the sampling error keeps
+the classical fit, which has no knots tuned to anything.
+
+Under the robust loss's point weights w every fit is the weighted one and the held-out
+points are compared by the weighted mean and spread of d, with ``n_eff = (sum w)^2 /
+sum w^2`` points (unit weights give the plain test).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.projection import closest_parameters
+
+from .hybrid import KnotWeightSearch, loo_smoothing
+from .polish import polish
+from .solve import weighted_rms
+
+Z = 2.0  # standard errors: a one-sided paired z-test at about 2%
+ROUNDS = 10  # polish rounds per candidate: most of the parameter correction, a tenth of the time
+SAMPLES = 64  # surface samples per direction for the surface-to-data distances
+
+
+@dataclass(frozen=True)
+class PairedTest:
+    """One comparison on the held-out points (errors in the fit's normalised units)."""
+
+    points: int
+    classical_error: float  # rms error of the held-out points under the classical fit
+    swarm_error: float
+    z: float  # mean(d) / standard error: negative where the swarm is closer
+
+
+def paired_test(classical: np.ndarray, swarm: np.ndarray, weights: np.ndarray | None = None) -> PairedTest:
+    """The paired z statistic of per-point errors (n,) of the two candidates (weighted
+    by ``weights`` (n,), if given)."""
+    d = swarm ** 2 - classical ** 2
+    if weights is None:
+        n_eff, mean = len(d), float(np.mean(d))
+        spread = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
+    else:
+        w = np.asarray(weights, float)
+        n_eff = float(np.sum(w) ** 2 / np.sum(w ** 2))
+        mean = float(np.sum(w * d) / np.sum(w))
+        spread = float(np.sqrt(np.sum(w * (d - mean) ** 2) / np.sum(w) * n_eff / (n_eff - 1))) if n_eff > 1 else 0.0
+    if spread > 0:
+        z = mean * np.sqrt(n_eff) / spread
+    else:
+        z = 0.0 if mean == 0 else float(np.copysign(np.inf, mean))
+    return PairedTest(len(d), weighted_rms(classical ** 2, weights), weighted_rms(swarm ** 2, weights), z)
+
+
+@dataclass(frozen=True)
+class Validation:
+    first: PairedTest  # at the first parameters: the swarm's own measure, out of sample
+    polished: PairedTest  # held-out points to both surfaces polished
+    overshoot: PairedTest  # samples of both polished surfaces to the cloud
+
+    @property
+    def kept(self) -> str:
+        return "swarm" if self.first.z < -Z and self.polished.z < -Z and self.overshoot.z < Z else "classical"
+
+    def to_dict(self) -> dict:
+        return {"held_out_points": self.polished.points,
+                "held_out_error": {"classical": self.polished.classical_error, "swarm": self.polished.swarm_error},
+                "held_out_z": {"first": self.first.z, "polished": self.polished.z, "overshoot": self.overshoot.z},
+                "kept": self.kept}
+
+
+def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray,
+                    uv: np.ndarray, seen: np.ndarray, polish_iterations: int,
+                    point_weights: np.ndarray | None = None) -> tuple[np.ndarray, Validation | None]:
+    """The swarm's best particle or the classical start (see the module doc); the best
+    itself (and no test) when fewer than four points were not seen or the best is the
+    classical start.
+
+    The candidates are fitted to the swarm's points and every other unseen point (closer
+    to the final fit, which sees every point, than the swarm's sample alone: knots chosen
+    for a sample can beat uniform ones on it and lose with all the points) and judged on
+    the rest. Each is finished as the pipeline finishes it: the smoothing chosen by
+    leave-one-out (the classical start carries the configured one, which the classical
+    fit does not end with), polished with it (``ROUNDS`` rounds at most, the same for
+    both), the smoothing chosen again at the corrected parameters."""
+    unseen = np.setdiff1d(np.arange(len(points)), seen)
+    classical = search.classical()
+    if len(unseen) < 4 or np.array_equal(best, classical):
+        return best, None
+    judged, fitted = unseen[::2], np.concatenate([seen, unseen[1::2]])
+    c = (lambda idx: None) if point_weights is None else (lambda idx: point_weights[idx])  # weights of a subset
+    cloud = cKDTree(points)
+    first, polished, overshoot = [], [], []
+    for x in (classical, best):
+        inner_u, inner_v, weights, smoothing = search.split(x)
+        knots = (weights, inner_u, inner_v)
+        if x is classical:
+            smoothing = loo_smoothing(layout, search.solver, points[seen], uv[seen], *knots, c(seen))
+        solver = search.solver.with_smoothing(smoothing)
+        control = solver.solve(layout.rows(uv[fitted], *knots), points[fitted], c(fitted))
+        first.append(np.linalg.norm(layout.rows(uv[judged], *knots) @ control - points[judged], axis=1))
+        corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS),
+                           point_weights=c(fitted))[2]
+        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], *knots,
+                                                     c(seen)))
+        control = solver.solve(layout.rows(corrected, *knots), points[fitted], c(fitted))
+        surface = layout.surface(control, *knots)
+        polished.append(closest_parameters(surface, points[judged])[1])
+        overshoot.append(cloud.query(surface.evaluate_grid(*surface.parameter_grid(SAMPLES, SAMPLES)).reshape(-1, 3))[0])
+    test = Validation(paired_test(*first, c(judged)), paired_test(*polished, c(judged)), paired_test(*overshoot))
+    return (best if test.kept == "swarm" else classical), test
