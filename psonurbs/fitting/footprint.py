@@ -10,7 +10,7 @@ From the points' final parameters (their foot points on the fitted surface):
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
    ``ALPHA`` times the largest spacing of their corners: a gap narrower than that is
-   sampling, a wider one is a hole or lies outside. Gross outliers (``inliers``) are left out.
+   sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0) are left out.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -49,7 +49,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
-from .robust import inliers
+from .robust import biweights
 
 NEIGHBOURS = 16
 ALPHA = 2.5
@@ -178,7 +178,7 @@ class Contours:
 def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
-    good = np.flatnonzero(inliers(distances))
+    good = np.flatnonzero(biweights(distances) > 0)  # gross outliers (weight 0) have no footprint
     x = uv[good] * scale
     spacing = local_spacing(x)
     tri, kept = alpha_triangles(x, spacing)

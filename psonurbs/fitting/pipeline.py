@@ -232,9 +232,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             surface, info["subsample"] = done.surface, {"points": int(len(big)), "final_rounds": done.rounds}
             if done.point_weights is not None:
                 info["robust"] = {"loss": loss_summary(done.point_weights)}
-        local = cloud.frame.to_local(points)
-        uv, dist = closest_parameters(surface, local)
-        face = footprint(surface, local, uv, dist, config.trim if topology == "open" else False)
+        in_frame = cloud.frame.to_local(points)
+        uv, dist = closest_parameters(surface, in_frame)
+        face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False)
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
         checks = check_fit(surface, cloud.points)
