@@ -37,7 +37,7 @@ from score import score
 
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
-COLUMNS = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "seam", "pole_spread",
+COLUMNS = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread",
            "mesh_vs_nurbs", "claim_err", "curve_ok", "suspect"]
 
 

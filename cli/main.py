@@ -192,9 +192,10 @@ def cli() -> None:
                    "a scheduler file (scheduler.json), or local:N for N local worker processes. "
                    "Needs the dask extra; the files are identical to --jobs 1.")
 @click.option("--format", "formats", type=click.Choice(FORMATS), multiple=True,
-              help="Also export the exact surface: 3dm (Rhino; needs rhino3dm), iges "
-                   "(IGES 5.3 entity 128, STEM.igs), obj-nurbs (a 'cstype rat bspline' "
-                   "block in STEM.obj). Repeatable.")
+              help="Also export the exact surface (trimmed to its loops if it has any): 3dm "
+                   "(Rhino; needs rhino3dm), iges (IGES 5.3 entity 128, trimmed: 144, STEM.igs), "
+                   "obj-nurbs (a 'cstype rat bspline' block in STEM.obj, with trim/hole), step "
+                   "(STEP AP214 face, STEM.step; needs cadquery-ocp). Repeatable.")
 @gate_options("a fit's")
 @click.option("--fail-suspect", is_flag=True,
               help="Gate: exit 3 if a fit fails a self-check (surface or net far outside the "
@@ -218,6 +219,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       STEM.ply, .obj   the tessellated surface as a triangle mesh
       STEM_error.csv   the error curve, one row per swarm iteration
       STEM.igs, .3dm   with --format iges / 3dm
+      STEM.step        with --format step
 
     and for the run, summary.csv and summary.json: one row per cloud (file,
     points, topology, net, rmse, max_error, relative figures, seconds, status,
@@ -380,8 +382,9 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
     """Distances from CLOUD to the surface saved in SURFACE.json.
 
     SURFACE.json is a fit's STEM.json (or a bare surface object). Prints the
-    rmse, max, mean and percentiles of the point-to-surface distances, in the
-    cloud's units and relative to its bounding-box diagonal.
+    rmse, max, mean and percentiles of the point-to-surface distances (to the
+    trimmed face when the surface has trim loops), in the cloud's units and
+    relative to its bounding-box diagonal.
 
     \b
       psonurbs score results/scan.json new_scan.ply
@@ -391,9 +394,13 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
     --max-rmse / --max-rmse-rel, 130 interrupted, 143 terminated.
     """
     from psonurbs.formats.clouds import read_cloud
-    from psonurbs.run.scoring import load_surface, score
+    from psonurbs.run.scoring import load_surface, score, surface_trim
 
-    figures = _run(ctx, lambda: score(load_surface(surface_path)[0], read_cloud(cloud)))
+    def measure():
+        surface, document = load_surface(surface_path)
+        return score(surface, read_cloud(cloud), surface_trim(document))
+
+    figures = _run(ctx, measure)
     reason = Gate(max_rmse, max_rmse_rel).check(figures)
     if as_json:
         import json
@@ -429,8 +436,9 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
 
     \b
       STEM_curve.png     error curve: best and mean RMSE per iteration, log scale
-      STEM_views.png     cloud, fitted surface and control net from four viewpoints
+      STEM_views.png     cloud, fitted (trimmed) surface and control net, four views
       STEM_distance.png  the points coloured by their distance to the surface
+      STEM_domain.png    the parameter domain: foot points, knot lines, trim loops
       STEM_basis.png     the basis functions of both knot vectors
 
     Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,

@@ -238,6 +238,8 @@ class FitConfig:
     parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
         (the cloud's own graph laid flat, then corrected from a coarse net to the
         configured one) or "auto" (the plane where the cloud is a height field over it).
+    trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.footprint`):
+        "auto" where the footprint leaves part of the domain empty, true always, false never.
     """
 
     orders: tuple[int, int] = (3, 3)
@@ -255,6 +257,7 @@ class FitConfig:
     refine: bool = True
     robust: bool = True
     parametrisation: str = "auto"
+    trim: str | bool = "auto"
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -312,6 +315,8 @@ class FitConfig:
         for name in ("cross_validation", "refine", "robust"):
             if not isinstance(getattr(self, name), bool):
                 raise _fail(name, "true or false", getattr(self, name))
+        if not (isinstance(self.trim, bool) or self.trim == "auto"):
+            raise _fail("trim", "auto, true or false", self.trim)
 
     @property
     def degrees(self) -> tuple[int, int]:

@@ -80,7 +80,8 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "robust", "parametrisation"]
+                       "min_knot_gap", "cross_validation", "refine", "robust", "parametrisation",
+                       "trim"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
@@ -222,6 +223,18 @@ def test_not_utf8(tmp_path):
     path.write_bytes(b"orders: [3, 3]\n\xff\xfe\n")
     with pytest.raises(ConfigError, match=r"cfg\.yaml: config file is not UTF-8 text"):
         load_config(path)
+
+
+def test_trim_key_accepts_auto_true_false_only():
+    from psonurbs.config import FitConfig, config_from_dict
+    from psonurbs.errors import ConfigError
+
+    assert FitConfig().trim == "auto"
+    assert config_from_dict({"trim": True}).trim is True
+    assert config_from_dict({"trim": False}).trim is False
+    for bad in ("yes", 1, None):
+        with pytest.raises(ConfigError, match="'trim': expected auto, true or false"):
+            config_from_dict({"trim": bad})
 
 
 @pytest.mark.parametrize("text, problem", [

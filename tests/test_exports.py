@@ -237,6 +237,6 @@ def test_unknown_format_is_a_usage_error(tmp_path):
 
     from psonurbs.cli.main import cli
 
-    result = CliRunner().invoke(cli, ["fit", "x.ply", "-o", str(tmp_path), "--format", "step"])
+    result = CliRunner().invoke(cli, ["fit", "x.ply", "-o", str(tmp_path), "--format", "sat"])
     assert result.exit_code == 2
-    assert "'step' is not one of" in result.output
+    assert "'sat' is not one of" in result.output

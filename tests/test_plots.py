@@ -51,7 +51,7 @@ def test_plot_writes_every_picture(tmp_path, make):
     result = run("plot", result_json)
     assert result.exit_code == 0, result.stderr
     assert result.stderr == ""
-    names = ["curve", "views", "distance", "basis"]
+    names = ["curve", "views", "distance", "domain", "basis"]
     assert result.stdout.splitlines() == [str(tmp_path / "res" / f"scan_{n}.png") for n in names]
     for name in names:
         check_png(tmp_path / "res" / f"scan_{name}.png", name)
@@ -65,7 +65,7 @@ def test_plot_without_cloud_draws_surface_and_net(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.stderr
     assert "cloud scan.ply not found" in result.stderr
     assert sorted(p.name for p in (tmp_path / "pics").iterdir()) == \
-        ["scan_basis.png", "scan_curve.png", "scan_views.png"]
+        ["scan_basis.png", "scan_curve.png", "scan_domain.png", "scan_views.png"]
     check_png(tmp_path / "pics" / "scan_views.png", "views")
 
 
@@ -124,3 +124,21 @@ def test_demo_fits_the_samples_and_plots(tmp_path):
 
     write_samples(again)
     assert (again / "bump.ply").read_bytes() == (out / "clouds" / "bump.ply").read_bytes()
+
+
+def test_plot_of_a_trimmed_fit_draws_its_loops(tmp_path):
+    from test_trim import plate_trim
+
+    surface, trim = open_surface(), plate_trim()
+    result_json = write_fit(tmp_path / "res", surface)
+    doc = json.loads(result_json.read_text())
+    doc["surface"]["trim"] = trim.to_list()
+    result_json.write_text(json.dumps(doc))
+    result = run("plot", result_json)
+    assert result.exit_code == 0, result.stderr
+    check_png(tmp_path / "res" / "scan_domain.png", "domain")
+    check_png(tmp_path / "res" / "scan_views.png", "views")
+    # the loops are drawn: red pixels along the outer loop
+    image = imread(str(tmp_path / "res" / "scan_domain.png"))[..., :3]
+    red = (image[..., 0] > 0.7) & (image[..., 1] < 0.4) & (image[..., 2] < 0.4)
+    assert red.mean() > 0.002

@@ -30,8 +30,10 @@ from threadpoolctl import threadpool_limits
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.trim import Trim
 
 from .checks import check_fit
+from .footprint import footprint, footprint_notes
 from .hybrid import KnotWeightSearch, loo_smoothing
 from .organise import RESOLUTION, Cloud, organise, subsample
 from .outliers import OUTLIER_SIGMAS, local_outliers
@@ -67,6 +69,7 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
     warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.checks`)
+    trim: Trim | None = None  # the face's loops in the surface's parameter domain (None: untrimmed)
 
 
 def rms(distances: np.ndarray) -> float:
@@ -229,7 +232,11 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             surface, info["subsample"] = done.surface, {"points": int(len(big)), "final_rounds": done.rounds}
             if done.point_weights is not None:
                 info["robust"] = {"loss": loss_summary(done.point_weights)}
-        _, dist = closest_parameters(surface, cloud.frame.to_local(points))
+        in_frame = cloud.frame.to_local(points)
+        uv, dist = closest_parameters(surface, in_frame)
+        face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False)
+        surface, dist = face.surface, face.distances
+        info["trim"] = face.to_dict()
         checks = check_fit(surface, cloud.points)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
@@ -278,5 +285,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         notes.append(f"topology auto: {topology} (" + ", ".join(
             f"{name} {s['classical_error_relative']:.2e}" if "rejected" not in s else f"{name} rejected: {s['rejected']}"
             for name, s in scores.items()) + ")")
+    notes += footprint_notes(face, len(points))
+    metrics["outside_trim"] = int(face.points_outside)
     notes += [f"suspect fit: {warning}" for warning in checks.warnings]
-    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings)
+    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings, trim=face.trim)

@@ -116,8 +116,11 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
         result = fit(cloud.points, job.config, on_iteration=on_iteration)
+        trim = getattr(result, "trim", None)
         notes = [*cloud.notes, *result.notes]
         surface = result.surface.to_dict()
+        if trim is not None:
+            surface["trim"] = trim.to_list()
         document = {
             "psonurbs_version": psonurbs.__version__,
             "cloud": path.name,
@@ -128,13 +131,15 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
             "notes": notes,
             "config": job.config.to_dict(),
         }
-        vertices, triangles = result.surface.tessellate(*job.config.tessellation)
+        vertices, triangles = _mesh(result.surface, trim, job.config.tessellation)
         obj_extra, extra_files = ("", {})
         if formats:
             from psonurbs.geometry.nurbs import NurbsSurface
+            from psonurbs.geometry.trim import Trim
 
-            exact = NurbsSurface.from_dict(surface)
-            obj_extra, extra_files = render_exports(exact, formats, _export_name(path.stem), len(vertices))
+            exact = NurbsSurface.from_dict(surface)  # what the JSON says, to the last digit
+            obj_extra, extra_files = render_exports(exact, formats, _export_name(path.stem), len(vertices),
+                                                    Trim.from_list(surface.get("trim")))
         metrics = result.metrics
         row.topology = result.topology
         row.net = "x".join(str(n) for n in job.config.net_size)  # distinct control points
@@ -144,6 +149,10 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         row.max_error_relative = _number(metrics.get("max_error_relative"))
         row.notes = notes
         row.warnings = list(result.warnings)
+        if trim is not None and "3dm" in formats:
+            from psonurbs.formats.cad import TRIM_3DM_NOTE
+
+            notes.append(TRIM_3DM_NOTE.replace("STEM", path.stem))
         outputs = dict(document=document, vertices=vertices, triangles=triangles,
                        curve_header=list(result.curve_header), curve_rows=result.curve,
                        obj_extra=obj_extra, extra_files=extra_files)
@@ -177,6 +186,16 @@ def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
 def _export_name(stem: str) -> str:
     """The surface's name inside CAD files: the stem, on one line, encodable as UTF-8."""
     return "".join(c if c.isprintable() else "_" for c in printable(stem)) or "surface"
+
+
+def _mesh(surface, trim, tessellation: tuple[int, int]):
+    """The surface's triangle mesh (vertices, triangles), clipped to the trim if any."""
+    if trim is None:
+        return surface.tessellate(*tessellation)
+    from psonurbs.geometry.trim import trimmed_mesh
+
+    vertices, triangles, _ = trimmed_mesh(surface, trim, *tessellation)
+    return vertices, triangles
 
 
 def _number(x) -> float | None:

@@ -4,10 +4,12 @@ From a fit's ``STEM.json`` (and ``STEM_error.csv`` beside it, and the cloud when
 can be found) :func:`plot_result` writes:
 
 * ``STEM_curve.png``: the error curve, best and mean RMSE per swarm iteration, log y;
-* ``STEM_views.png``: the cloud with the fitted surface and its control net, from four
+* ``STEM_views.png``: the cloud with the fitted (trimmed) surface and its control net, from four
   viewpoints (surface and net only when there is no cloud);
 * ``STEM_distance.png``: the points coloured by their distance to the surface, with a
   histogram of the distances (only with a cloud);
+* ``STEM_domain.png``: the parameter domain: the points' foot points, the knot lines and
+  the trim loops (outer boundary and holes);
 * ``STEM_basis.png``: the B-spline basis functions of both knot vectors (the paper's
   Fig. 4), knots marked.
 
@@ -27,7 +29,8 @@ __all__ = ["SIZES", "plot_result", "find_cloud", "read_curve"]
 
 DPI = 100
 #: (width, height) in pixels of each picture, by name suffix.
-SIZES = {"curve": (900, 560), "views": (1200, 1000), "distance": (1200, 560), "basis": (900, 700)}
+SIZES = {"curve": (900, 560), "views": (1200, 1000), "distance": (1200, 560), "basis": (900, 700),
+         "domain": (800, 800)}
 MAX_DRAWN_POINTS = 6000
 
 
@@ -115,9 +118,15 @@ def plot_curve(header: list[str], rows: np.ndarray, title: str, path: Path) -> P
     return _save(fig, path)
 
 
-def plot_views(surface, points: np.ndarray | None, title: str, path: Path) -> Path:
+def plot_views(surface, points: np.ndarray | None, title: str, path: Path, trim=None) -> Path:
     fig = _figure("views")
     grid = surface.evaluate_grid(*surface.parameter_grid(41, 41))
+    mesh = None
+    if trim is not None:
+        from psonurbs.geometry.trim import trimmed_mesh
+
+        verts, tris, _ = trimmed_mesh(surface, trim, 41, 41)
+        mesh = (verts, tris)
     net = surface.control_points
     every = [grid.reshape(-1, 3), net.reshape(-1, 3)]
     if points is not None:
@@ -127,8 +136,12 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path) -> Pa
     views = [(25, -60, "perspective"), (25, 30, "side"), (90, -90, "top"), (0, -90, "front")]
     for k, (elev, azim, name) in enumerate(views, 1):
         ax = fig.add_subplot(2, 2, k, projection="3d")
-        ax.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], color="tab:blue", alpha=0.45,
-                        linewidth=0, antialiased=True, shade=True)
+        if mesh is None:
+            ax.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], color="tab:blue", alpha=0.45,
+                            linewidth=0, antialiased=True, shade=True)
+        else:  # the trimmed face
+            ax.plot_trisurf(mesh[0][:, 0], mesh[0][:, 1], mesh[0][:, 2], triangles=mesh[1], color="tab:blue",
+                            alpha=0.45, linewidth=0, antialiased=True, shade=True)
         for i in range(net.shape[0]):
             ax.plot(net[i, :, 0], net[i, :, 1], net[i, :, 2], color="tab:red", lw=0.8)
         for j in range(net.shape[1]):
@@ -152,10 +165,10 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path) -> Pa
     return _save(fig, path)
 
 
-def plot_distance(surface, points: np.ndarray, title: str, path: Path) -> Path:
+def plot_distance(surface, points: np.ndarray, title: str, path: Path, trim=None) -> Path:
     from .scoring import point_distances
 
-    distances = point_distances(surface, points)
+    distances = point_distances(surface, points, trim)
     fig = _figure("distance")
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     keep = np.arange(len(points)) if len(points) <= MAX_DRAWN_POINTS else \
@@ -175,6 +188,38 @@ def plot_distance(surface, points: np.ndarray, title: str, path: Path) -> Path:
     hist.legend()
     fig.suptitle(f"{title}: {len(points)} points, max {distances.max():.3g}")
     fig.subplots_adjust(left=0.02, right=0.97, bottom=0.1, top=0.9, wspace=0.25)
+    return _save(fig, path)
+
+
+def plot_domain(surface, trim, points: np.ndarray | None, title: str, path: Path) -> Path:
+    """The parameter domain: the points' foot-point parameters, the knot lines and the trim loops."""
+    from psonurbs.geometry.projection import closest_parameters
+
+    fig = _figure("domain")
+    ax = fig.add_subplot(1, 1, 1)
+    if points is not None:
+        uv, _ = closest_parameters(surface, _subsample(points))
+        ax.plot(uv[:, 0], uv[:, 1], ".", color="k", ms=1.5, alpha=0.6, label="points (foot points)")
+    (u0, u1), (v0, v1) = surface.domain_u, surface.domain_v
+    for t in np.unique(surface.knots_u[(surface.knots_u >= u0) & (surface.knots_u <= u1)]):
+        ax.axvline(t, color="grey", lw=0.5, alpha=0.6)
+    for t in np.unique(surface.knots_v[(surface.knots_v >= v0) & (surface.knots_v <= v1)]):
+        ax.axhline(t, color="grey", lw=0.5, alpha=0.6)
+    for k, loop in enumerate(trim.loops if trim is not None else ()):
+        p = loop.polygon()
+        p = np.concatenate([p, p[:1]])
+        ax.plot(p[:, 0], p[:, 1], color="tab:red" if k == 0 else "tab:orange", lw=1.5,
+                label="outer loop" if k == 0 else ("holes" if k == 1 else None))
+    ax.set_xlim(u0, u1)
+    ax.set_ylim(v0, v1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u")
+    ax.set_ylabel("v")
+    loops = 0 if trim is None else len(trim.loops)
+    ax.set_title(f"{title}: parameter domain, knot lines (grey), {loops} trim loop{'s' if loops != 1 else ''}",
+                 fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -216,7 +261,7 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
     """
     from psonurbs.formats.clouds import read_cloud
 
-    from .scoring import load_surface
+    from .scoring import load_surface, surface_trim
 
     _matplotlib()
     json_path = Path(json_path)
@@ -241,8 +286,10 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
         written.append(plot_curve(*curve, title, out / f"{stem}_curve.png"))
     else:
         notes.append(f"no error curve {stem}_error.csv beside the JSON: skipped {stem}_curve.png")
-    written.append(plot_views(surface, points, title, out / f"{stem}_views.png"))
+    trim = surface_trim(document)
+    written.append(plot_views(surface, points, title, out / f"{stem}_views.png", trim))
     if points is not None:
-        written.append(plot_distance(surface, points, title, out / f"{stem}_distance.png"))
+        written.append(plot_distance(surface, points, title, out / f"{stem}_distance.png", trim))
+    written.append(plot_domain(surface, trim, points, title, out / f"{stem}_domain.png"))
     written.append(plot_basis(surface, title, out / f"{stem}_basis.png"))
     return written, notes

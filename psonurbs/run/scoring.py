@@ -52,26 +52,41 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
     return surface, document
 
 
-def point_distances(surface: NurbsSurface, points: np.ndarray) -> np.ndarray:
-    """Distance of each point to the surface, shape (N,)."""
+def point_distances(surface: NurbsSurface, points: np.ndarray, trim=None) -> np.ndarray:
+    """Distance of each point to the surface (to the trimmed face when ``trim`` is given,
+    a :class:`~psonurbs.geometry.trim.Trim`), shape (N,)."""
     from psonurbs.geometry.projection import closest_parameters
+    from psonurbs.geometry.trim import distances_to_face
 
     points = np.asarray(points, float).reshape(-1, 3)
     if len(points) == 0:
         return np.zeros(0)
-    _, distances = closest_parameters(surface, points)
+    uv, distances = closest_parameters(surface, points)
+    if trim is not None:
+        distances = distances_to_face(surface, trim, points, uv, distances)
     return np.asarray(distances, float)
 
 
-def score(surface: NurbsSurface, points: np.ndarray) -> dict:
-    """Figures of the distances from ``points`` to ``surface``.
+def surface_trim(document: dict):
+    """The trim of a fit's document (``surface.trim``), or None when it is untrimmed."""
+    from psonurbs.geometry.trim import Trim
+
+    data = document.get("surface", document)
+    try:
+        return Trim.from_list(data.get("trim"))
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"invalid trim loops: {e}") from None
+
+
+def score(surface: NurbsSurface, points: np.ndarray, trim=None) -> dict:
+    """Figures of the distances from ``points`` to ``surface`` (its trimmed face with ``trim``).
 
     ``rmse``, ``max_error``, ``mean_error`` and the percentiles ``p50`` ... ``p99``
     are in the cloud's units; ``*_relative`` are divided by the cloud's bounding-box
     diagonal (``bbox_diagonal``).
     """
     points = np.asarray(points, float).reshape(-1, 3)
-    d = point_distances(surface, points)
+    d = point_distances(surface, points, trim)
     diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     out = {
         "points": int(len(points)),

@@ -1,0 +1,339 @@
+"""The data's footprint in the parameter domain, as trim loops.
+
+From the points' final parameters (their foot points on the fitted surface):
+
+1. **Metric.** The domain is scaled by the surface's mean speeds, x = (u |S_u|, v |S_v|),
+   so that distances in it are about distances on the surface.
+2. **Spacing.** Each point's local spacing s_i = r_k sqrt(pi / k), r_k the distance to
+   its k-th neighbour (``NEIGHBOURS``): the grid step of a uniform sampling of the same
+   density. k is large enough that a scan's lines (dense along, sparse across) give the
+   density, not the step along a line.
+3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
+   ``ALPHA`` times the largest spacing of their corners: a gap narrower than that is
+   sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0) are left out.
+4. **The face.** The kept triangles' connected pieces: the face is the largest (by
+   area); the points of the others lie off it (measured to its boundary, as a scorer
+   of the trimmed surface measures them).
+5. **Loops.** The piece is rasterised, its distance field contoured at a margin of a
+   quarter median spacing outside it (:func:`psonurbs.geometry.contour.contours`; a hole
+   of less area than a disc of radius ``ALPHA`` median spacings is a sampling gap and is
+   covered), and each contour fitted by a closed cubic B-spline with the fewest control points (doubling)
+   that keeps within half the margin of it, inside the domain, every loop simple
+   and apart from the others, and the piece's points inside the face.
+
+``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
+domain: an empty disc of radius at least ``ALPHA`` median spacings (as wide as the gaps the
+alpha shape opens; a cloud that fills its rectangle leaves only sampling gaps along the
+edges); ``true`` always; ``false`` never.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import Delaunay, cKDTree
+
+from psonurbs.geometry.contour import contours, simplify_closed
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.trim import (
+    Trim,
+    TrimLoop,
+    crossing,
+    distances_to_face,
+    fit_closed_curve,
+    inside,
+    polygon_loop,
+    signed_area,
+)
+
+from .robust import biweights
+
+NEIGHBOURS = 16
+ALPHA = 2.5
+MARGIN = 0.25  # loops this many median spacings outside the points
+MAX_CONTROL = 128  # control points of a cubic loop at most
+# a loop along the domain's edge runs this far outside it (of the unit domain): on the edge
+# itself an even-odd test is undecided, and the data's points held on the edge must be inside
+EDGE_OUTSET = 1e-9
+MAX_RASTER = 1500  # cells along the longer side of the footprint's raster
+AREA_GRID = 201  # surface area elements for the empty share
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """The result: the surface, its trim (None: untrimmed), the points' distances to the
+    face, and what was found."""
+
+    surface: NurbsSurface
+    trim: Trim | None
+    distances: np.ndarray  # (N,) of the points to the (trimmed) surface
+    loops: int
+    empty_share: float  # share of the fitted surface's area outside the face
+    points_outside: int  # points whose parameters lie outside the face
+    fragments: int  # pieces of the footprint left out of the face
+    fragment_points: int
+    spacing: float  # median spacing, in the surface's (approximate) length units
+
+    def to_dict(self) -> dict:
+        return {"trimmed": self.trim is not None, "loops": self.loops, "empty_share": self.empty_share,
+                "points_outside": self.points_outside, "fragments": self.fragments,
+                "fragment_points": self.fragment_points, "spacing": self.spacing}
+
+
+def mean_speeds(surface: NurbsSurface, n: int = 33) -> np.ndarray:
+    """(mean |S_u|, mean |S_v|) over an n x n parameter grid."""
+    uu, vv = np.meshgrid(*surface.parameter_grid(n, n), indexing="ij")
+    _, su, sv = surface.derivatives(uu.ravel(), vv.ravel())
+    speeds = np.array([np.linalg.norm(su, axis=1).mean(), np.linalg.norm(sv, axis=1).mean()])
+    return np.maximum(speeds, 1e-12 * max(float(speeds.max()), 1e-300))
+
+
+def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
+    """s_i = r_k sqrt(pi / k): the step of a uniform grid with the density around point i."""
+    k = min(k, len(x) - 1)
+    r = cKDTree(x).query(x, k=k + 1)[0][:, -1]
+    return r * np.sqrt(np.pi / k)
+
+
+def alpha_triangles(x: np.ndarray, spacing: np.ndarray) -> tuple[Delaunay, np.ndarray]:
+    """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles.
+
+    Four far corners are added to the points (indices N .. N+3), so that any query point
+    near the data lies inside the triangulation's hull (a point-location query outside it
+    is slow); a triangle touching them is never kept, and no kept triangle changes (its
+    small circumcircle holds no far corner).
+    """
+    centre, size = 0.5 * (x.min(0) + x.max(0)), float(np.ptp(x, axis=0).max()) or 1.0
+    corners = centre + 100.0 * size * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])
+    pts = np.concatenate([x, corners])
+    tri = Delaunay(pts)
+    a, b, c = (pts[tri.simplices[:, k]] for k in range(3))
+    la, lb, lc = (np.linalg.norm(p - q, axis=1) for p, q in ((b, c), (c, a), (a, b)))
+    area2 = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = la * lb * lc / (2.0 * area2)
+    real = np.all(tri.simplices < len(x), axis=1)
+    limit = ALPHA * np.concatenate([spacing, np.zeros(4)])[tri.simplices].max(axis=1)
+    return tri, real & np.isfinite(radius) & (radius <= limit)
+
+
+def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
+    """Label (per triangle, -1 if not kept) of the kept triangles' edge-connected pieces."""
+    n = len(kept)
+    nb = tri.neighbors
+    rows = np.repeat(np.arange(n), 3)
+    cols = nb.ravel()
+    ok = (cols >= 0) & kept[rows] & kept[np.maximum(cols, 0)]
+    graph = coo_matrix((np.ones(ok.sum()), (rows[ok], cols[ok])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return np.where(kept, labels, -1)
+
+
+def rasterised(triangles: np.ndarray, x0: float, y0: float, cell: float, shape: tuple[int, int]) -> np.ndarray:
+    """Mask of the raster cells (centres x0 + i cell, y0 + j cell) inside any of the
+    triangles (K, 3, 2): each triangle tests the cells of its bounding box."""
+    p = (triangles - np.array([x0, y0])) / cell
+    lo = np.clip(np.ceil(p.min(axis=1)).astype(int), 0, np.array(shape) - 1)
+    hi = np.clip(np.floor(p.max(axis=1)).astype(int), 0, np.array(shape) - 1)
+    n = np.maximum(hi - lo + 1, 0)
+    count = n[:, 0] * n[:, 1]
+    owner = np.repeat(np.arange(len(p)), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    i = lo[owner, 0] + local // np.maximum(n[owner, 1], 1)
+    j = lo[owner, 1] + local % np.maximum(n[owner, 1], 1)
+    a, b, c = p[owner, 0], p[owner, 1], p[owner, 2]
+    q = np.stack([i, j], axis=1).astype(float)
+
+    def side(s, t):
+        return (t[:, 0] - s[:, 0]) * (q[:, 1] - s[:, 1]) - (t[:, 1] - s[:, 1]) * (q[:, 0] - s[:, 0])
+
+    d1, d2, d3 = side(a, b), side(b, c), side(c, a)
+    hit = ~((np.minimum(np.minimum(d1, d2), d3) < 0) & (np.maximum(np.maximum(d1, d2), d3) > 0))
+    mask = np.zeros(shape, bool)
+    mask[i[hit], j[hit]] = True
+    return mask
+
+
+@dataclass(frozen=True)
+class Contours:
+    """The face's contours in the parameter domain, before they are fitted."""
+
+    polygons: list[np.ndarray]  # the outer boundary (counter-clockwise) first, then the holes
+    face_points: np.ndarray  # indices of the points (into uv) on the face's piece
+    fragments: int
+    fragment_points: int
+    spacing: float  # median spacing, surface length units
+    tolerance: np.ndarray  # (2,) half the margin, in u and v
+    empty_radius: float  # radius of the widest empty disc in the domain outside the face
+
+    def reach(self) -> np.ndarray:
+        """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
+        p = np.concatenate(self.polygons)
+        return np.maximum(np.concatenate([-p.min(axis=0), p.max(axis=0) - 1.0]), 0.0)
+
+
+def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) -> Contours | None:
+    """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
+    scale = mean_speeds(surface)
+    good = np.flatnonzero(biweights(distances) > 0)  # gross outliers (weight 0) have no footprint
+    x = uv[good] * scale
+    spacing = local_spacing(x)
+    tri, kept = alpha_triangles(x, spacing)
+    if not kept.any():
+        return None
+    label = pieces(tri, kept)
+    a, b, c = (tri.points[tri.simplices[:, k]] for k in range(3))
+    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    piece_area = np.bincount(label[kept], weights=area[kept])
+    in_face = label == int(np.argmax(piece_area))
+    face_points = np.unique(tri.simplices[in_face])
+    others = np.setdiff1d(np.unique(tri.simplices[kept & ~in_face]), face_points)
+
+    # raster of the face, its distance field, contoured one margin outside it
+    margin = MARGIN * float(np.median(spacing))
+    lo, hi = np.minimum(x.min(axis=0), 0.0), np.maximum(x.max(axis=0), scale)  # the domain is [0, 1]^2
+    cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
+    margin = max(margin, 3.0 * cell)
+    pad = margin + 3.0 * cell
+    xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
+    ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
+    mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
+    field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+    field[[0, -1], :] = field[:, [0, -1]] = np.inf
+    # the widest empty disc in the domain outside the face: a real gap, or sampling?
+    in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
+    empty = in_domain & (field > margin)
+    gap = float(ndimage.distance_transform_edt(empty).max()) * cell if empty.any() else 0.0
+    polygons = [p / scale for p in contours(field, xs, ys, margin)]
+    polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
+    outer = int(np.argmax([signed_area(p) for p in polygons]))
+    # a hole smaller than a disc of the alpha scale is a sampling gap (a sliver of wide
+    # circumcircle in a random sample), not a gap in the data: the face covers it
+    smallest = np.pi * (ALPHA * float(np.median(spacing))) ** 2
+    holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
+    return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
+
+
+def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
+              mode: str | bool) -> Footprint:
+    """The trim of an open fit from its points (N, 3), their foot-point parameters uv
+    (N, 2) and distances (N,), and the points' distances to the trimmed surface."""
+    whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    if mode is False or len(uv) < 4:
+        return whole
+    found = face_contours(surface, uv, distances)
+    if found is None:
+        return whole
+    if mode == "auto" and found.empty_radius < ALPHA * found.spacing and len(found.polygons) == 1:
+        return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
+                         found.spacing)
+    lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
+    loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
+    trim = Trim(tuple(loops))
+    empty = empty_share(surface, trim)
+    outside = ~trim.contains(uv)
+    dist = distances_to_face(surface, trim, points, uv, distances)
+    return Footprint(surface, trim, dist, len(loops), empty, int(outside.sum()), found.fragments,
+                     found.fragment_points, found.spacing)
+
+
+def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray
+                 ) -> list[TrimLoop]:
+    """Closed B-splines for the contours (outer first).
+
+    Each loop is first a cubic with the fewest control points, doubling from 8 up to
+    ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour. Then,
+    together, the loops must be simple, apart, and hold ``must_inside`` (or pass within
+    the tolerance of them): a loop nearest a point left out gets twice the control points, and one already at the cap becomes
+    its contour itself, simplified within the tolerance (degree 1: it follows the
+    contour, which lies a margin outside the points); if two loops cross, all do.
+    """
+    lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
+    clamped = [np.clip(p, lo, hi) for p in polygons]
+    probe = np.asarray(must_inside, float)
+
+    def close_enough(loop: TrimLoop, polygon: np.ndarray) -> bool:
+        """Whether the loop keeps within the tolerance of its contour (where it would add
+        empty surface; cutting inside is judged by ``must_inside``)."""
+        dense = np.concatenate([polygon, 0.5 * (polygon + np.roll(polygon, -1, axis=0))]) / tolerance
+        return bool(cKDTree(dense).query(loop.polygon(4 * len(polygon)) / tolerance)[0].max() <= 1.0)
+
+    def cubic(k: int, n: int) -> TrimLoop:
+        return fit_closed_curve(polygons[k], n, 3, bounds=bounds, snap=tuple(2.0 * tolerance))
+
+    def polyline(k: int, exact: bool = False) -> TrimLoop:
+        return polygon_loop(clamped[k] if exact else simplify_closed(clamped[k], float(tolerance.min())))
+
+    cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
+    counts, loops = [], []
+    for k, p in enumerate(clamped):
+        n, loop = 8, cubic(k, 8)
+        close = close_enough(loop, p)
+        while not close and 2 * n <= cap[k]:
+            n *= 2
+            loop = cubic(k, n)
+            close = close_enough(loop, p)
+        counts.append(n)
+        loops.append(loop if close else polyline(k))
+    while True:
+        sampled = [loop.polygon() for loop in loops]
+        if crossing(sampled):
+            if all(loop.degree == 1 for loop in loops):
+                return loops
+            blamed = set(range(len(loops)))
+        else:
+            missed = probe[~inside(sampled, probe)] / tolerance
+            # a point within the tolerance of a loop is as good as on it (the loop is a
+            # margin outside the points, and only so precise)
+            nearest = [cKDTree(p / tolerance).query(missed)[0] for p in sampled] if len(missed) else []
+            if len(missed) == 0 or np.min(nearest, axis=0).max() <= 1.0:
+                return loops
+            far = np.min(nearest, axis=0) > 1.0
+            blamed = set(np.argmin(np.asarray(nearest)[:, far], axis=0).tolist())
+        changed = False
+        for k in blamed:
+            if loops[k].degree == 1:
+                if len(loops[k].control_points) <= len(clamped[k]):  # simplified: the contour itself
+                    loops[k] = polyline(k, exact=True)
+                    changed = True
+                continue
+            changed = True
+            if 2 * counts[k] <= cap[k]:
+                counts[k] *= 2
+                loops[k] = cubic(k, counts[k])
+            else:
+                loops[k] = polyline(k)
+        if not changed:  # the points left out are nearest polylines: they lie off the face (strays)
+            return loops
+
+
+def empty_share(surface: NurbsSurface, trim: Trim, n: int = AREA_GRID) -> float:
+    """Share of the surface's area outside the face (midpoint rule on an n x n grid of cells)."""
+    (u0, u1), (v0, v1) = surface.domain_u, surface.domain_v
+    us = u0 + (np.arange(n) + 0.5) / n * (u1 - u0)
+    vs = v0 + (np.arange(n) + 0.5) / n * (v1 - v0)
+    uu, vv = np.meshgrid(us, vs, indexing="ij")
+    _, su, sv = surface.derivatives(uu.ravel(), vv.ravel())
+    dA = np.linalg.norm(np.cross(su, sv), axis=1)
+    inner = trim.contains(np.stack([uu.ravel(), vv.ravel()], axis=1))
+    return float(1.0 - dA[inner].sum() / max(dA.sum(), 1e-300))
+
+
+def footprint_notes(face: Footprint, n_points: int) -> list[str]:
+    """What the user should know about the trim, for the fit's notes."""
+    if face.trim is None:
+        return []
+    holes = face.loops - 1
+    notes = [f"trimmed to the data's footprint: {face.loops} loop{'s' if face.loops > 1 else ''} "
+             f"(the outer boundary{f' and {holes} hole' + ('s' if holes > 1 else '') if holes else ''}); "
+             f"{100 * face.empty_share:.1f}% of the untrimmed surface had no data"]
+    if face.points_outside:
+        what = (f" ({face.fragment_points} in {face.fragments} detached piece{'s' if face.fragments > 1 else ''} "
+                "of the footprint)") if face.fragment_points else ""
+        notes.append(f"{face.points_outside} of {n_points} points lie off the trimmed face{what}; "
+                     "rmse and max_error measure them to its boundary")
+    return notes

@@ -1,0 +1,154 @@
+"""STEP export (AP214) of a fitted surface through OpenCASCADE (the optional ``cadquery-ocp``).
+
+The file holds one ADVANCED_FACE on a B_SPLINE_SURFACE_WITH_KNOTS (rational when the
+weights differ), bounded by its trim loops (each an edge whose curve on the surface is
+the loop, B_SPLINE_CURVE_WITH_KNOTS in (u, v), with its 3D curve built by OpenCASCADE),
+or by the surface's own boundary when it is untrimmed. OpenCASCADE's conventions are
+ours: poles [i][j] with i along u, flat knot vectors as (distinct knots, multiplicities),
+the domain [t_p, t_{n}] (so a closed direction's unclamped periodic vector works as it
+is), weights beside the poles. The face's material is on the left of its wires: the
+outer loop counter-clockwise, holes clockwise, as in the JSON.
+
+OCP is large: it is imported only when a STEP file is written.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+
+import numpy as np
+
+from psonurbs.errors import ConfigError
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.trim import Trim
+
+__all__ = ["step_available", "render_step"]
+
+INSTALL_HINT = "pip install 'psonurbs[cad]'"
+TOLERANCE = 1e-7  # OpenCASCADE's edge and vertex tolerance (cloud units)
+_FIXED_TIME = "1970-01-01T00:00:00"  # the same fit gives the same file
+
+
+def step_available() -> bool:
+    try:
+        import OCP.STEPControl  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _knots(flat: np.ndarray):
+    """A flat knot vector as OpenCASCADE's (distinct knots, multiplicities) arrays."""
+    from OCP.collections import Array1_double, Array1_int
+
+    values, counts = np.unique(np.asarray(flat, float), return_counts=True)
+    knots, mults = Array1_double(1, len(values)), Array1_int(1, len(values))
+    for k, (t, m) in enumerate(zip(values, counts), 1):
+        knots.SetValue(k, float(t))
+        mults.SetValue(k, int(m))
+    return knots, mults
+
+
+def occ_surface(surface: NurbsSurface):
+    """The surface as a ``Geom_BSplineSurface`` (rational unless all weights are equal)."""
+    from OCP.collections import Array2_double, Array2_gp_Pnt
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.gp import gp_Pnt
+
+    nu, nv = surface.shape
+    poles, weights = Array2_gp_Pnt(1, nu, 1, nv), Array2_double(1, nu, 1, nv)
+    for i in range(nu):
+        for j in range(nv):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*(float(c) for c in surface.control_points[i, j])))
+            weights.SetValue(i + 1, j + 1, float(surface.weights[i, j]))
+    ku, mu = _knots(surface.knots_u)
+    kv, mv = _knots(surface.knots_v)
+    if np.all(surface.weights == surface.weights.flat[0]):
+        return Geom_BSplineSurface(poles, ku, kv, mu, mv, surface.degree_u, surface.degree_v, False, False)
+    return Geom_BSplineSurface(poles, weights, ku, kv, mu, mv, surface.degree_u, surface.degree_v, False, False)
+
+
+def occ_face(surface: NurbsSurface, trim: Trim | None):
+    """A ``TopoDS_Face`` of the surface bounded by the trim's loops (or its own boundary)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakeWire
+    from OCP.BRepLib import BRepLib
+    from OCP.collections import Array1_gp_Pnt2d
+    from OCP.Geom2d import Geom2d_BSplineCurve
+    from OCP.gp import gp_Pnt2d
+
+    geom = occ_surface(surface)
+    if trim is None:
+        maker = BRepBuilderAPI_MakeFace(geom, TOLERANCE)
+        if not maker.IsDone():
+            raise ValueError("OpenCASCADE could not make a face of the surface")
+        return maker.Face()
+    wires = []
+    for loop in trim.loops:
+        poles = Array1_gp_Pnt2d(1, len(loop.control_points))
+        for k, (u, v) in enumerate(loop.control_points, 1):
+            poles.SetValue(k, gp_Pnt2d(float(u), float(v)))
+        knots, mults = _knots(loop.knots)
+        curve = Geom2d_BSplineCurve(poles, knots, mults, loop.degree, False)
+        edge = BRepBuilderAPI_MakeEdge(curve, geom).Edge()
+        wire = BRepBuilderAPI_MakeWire(edge).Wire()
+        BRepLib.BuildCurves3d_s(wire, TOLERANCE)
+        wires.append(wire)
+    maker = BRepBuilderAPI_MakeFace(geom, wires[0], True)
+    for wire in wires[1:]:
+        maker.Add(wire)
+    if not maker.IsDone():
+        raise ValueError("OpenCASCADE could not make a face of the trimmed surface")
+    face = maker.Face()
+    BRepLib.SameParameter_s(face, TOLERANCE)
+    return face
+
+
+def render_step(surface: NurbsSurface, trim: Trim | None = None, name: str = "surface") -> bytes:
+    """A STEP AP214 file with the (trimmed) surface as one ADVANCED_FACE (needs OCP)."""
+    try:
+        from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
+        from OCP.IFSelect import IFSelect_RetDone
+        from OCP.Interface import Interface_Static
+        from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+        from OCP.TCollection import TCollection_HAsciiString
+    except ImportError:
+        raise ConfigError(f"step export needs the optional package cadquery-ocp: {INSTALL_HINT}") from None
+    _quiet()
+    face = occ_face(surface, trim)
+    Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
+    Interface_Static.SetCVal_s("write.step.unit", "MM")
+    writer = STEPControl_Writer()
+    if writer.Transfer(face, STEPControl_AsIs) != IFSelect_RetDone:
+        raise ValueError("OpenCASCADE could not translate the face to STEP")
+    header = APIHeaderSection_MakeHeader(writer.Model())
+    header.SetTimeStamp(TCollection_HAsciiString(_FIXED_TIME))
+    from psonurbs import __version__
+    header.SetOriginatingSystem(TCollection_HAsciiString(f"psonurbs {__version__}"))
+    fd, tmp = tempfile.mkstemp(suffix=".step")
+    os.close(fd)
+    try:
+        if writer.Write(tmp) != IFSelect_RetDone:
+            raise ValueError("OpenCASCADE could not write the STEP file")
+        with open(tmp, "rb") as f:
+            data = f.read()
+    finally:
+        os.unlink(tmp)
+    # the writer's time stamp and its numbered product name: fixed, so the same fit gives the same file
+    data = re.sub(rb"FILE_NAME\('([^']*)','[^']*'", lambda m: b"FILE_NAME('" + m.group(1) + b"','"
+                  + _FIXED_TIME.encode() + b"'", data, count=1)
+    label = _step_string(name).encode()
+    return re.sub(rb"= PRODUCT\('[^']*',\s*'[^']*'", b"= PRODUCT('" + label + b"','" + label + b"'", data, count=1)
+
+
+def _step_string(text: str) -> str:
+    return re.sub(r"[^ -~]|'|\\", "_", text) or "surface"
+
+
+def _quiet() -> None:
+    """OpenCASCADE's messages (transfer statistics) are for its own console, not ours."""
+    from OCP.Message import Message, Message_Gravity
+
+    printers = Message.DefaultMessenger_s().Printers()
+    for printer in printers:
+        printer.SetTraceLevel(Message_Gravity.Message_Fail)

@@ -1,0 +1,114 @@
+"""Closed contours of a sampled field (marching squares) and polyline simplification.
+
+:func:`contours` returns the level set ``f = level`` of a field sampled on a regular grid
+as closed polygons with the region ``f < level`` on their left: outer boundaries
+counter-clockwise, holes clockwise. Each grid cell with corners a, b, c, d (counter-
+clockwise) crosses the level on the edges whose corners lie on opposite sides; walking
+round the cell, a segment runs from an edge left inside -> outside to the next one
+entered outside -> inside, so an edge shared by two cells starts a segment in one and
+ends one in the other and the segments chain into closed loops. A saddle cell (two
+opposite corners inside) is resolved by the value at its centre. Crossings are placed
+by linear interpolation along the edges.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["contours", "simplify_closed"]
+
+
+def contours(field: np.ndarray, x: np.ndarray, y: np.ndarray, level: float) -> list[np.ndarray]:
+    """Closed polygons (each (M, 2), not repeating its first vertex) of ``field == level``.
+
+    ``field[i, j]`` is the value at ``(x[i], y[j])``. The grid's border must lie outside
+    (``field >= level``) so that every contour closes.
+    """
+    f = np.asarray(field, float)
+    nx, ny = f.shape
+    if np.any(f[[0, -1], :] < level) or np.any(f[:, [0, -1]] < level):
+        raise ValueError("the field's border must lie outside the contour level")
+    inside = f < level
+    n_h = (nx - 1) * ny  # horizontal edges (i, j)-(i+1, j) first, then vertical (i, j)-(i, j+1)
+
+    def h(i, j):
+        return i * ny + j
+
+    def v(i, j):
+        return n_h + i * (ny - 1) + j
+
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    corners = np.stack([inside[i, j], inside[i + 1, j], inside[i + 1, j + 1], inside[i, j + 1]], axis=1)
+    edges = np.stack([h(i, j), v(i + 1, j), h(i, j + 1), v(i, j)], axis=1)  # a-b, b-c, c-d, d-a
+    leaving = corners & ~np.roll(corners, -1, axis=1)  # edge k walked from inside to outside
+    entering = ~corners & np.roll(corners, -1, axis=1)
+    count = leaving.sum(axis=1)
+    centre = 0.25 * (f[i, j] + f[i + 1, j] + f[i + 1, j + 1] + f[i, j + 1]) < level
+    starts, ends = [], []
+    for k in range(4):
+        # non-saddle cells: the one leaving edge pairs with the one entering edge
+        one = (count == 1) & leaving[:, k]
+        starts.append(edges[one, k])
+        ends.append(edges[one][np.arange(one.sum()), np.argmax(entering[one], axis=1)])
+        # saddles: the entering edge next (centre inside) or before (centre outside)
+        two = (count == 2) & leaving[:, k]
+        step = np.where(centre[two], 1, -1)
+        starts.append(edges[two, k])
+        ends.append(edges[two][np.arange(two.sum()), (k + step) % 4])
+    starts, ends = np.concatenate(starts), np.concatenate(ends)
+    successor = np.full(n_h + nx * (ny - 1), -1)
+    successor[starts] = ends
+
+    # the crossing point of each edge
+    ei = np.concatenate([np.repeat(np.arange(nx - 1), ny), np.repeat(np.arange(nx), ny - 1)])
+    ej = np.concatenate([np.tile(np.arange(ny), nx - 1), np.tile(np.arange(ny - 1), nx)])
+    di = np.concatenate([np.ones(n_h, int), np.zeros(nx * (ny - 1), int)])
+    f0, f1 = f[ei, ej], f[ei + di, ej + 1 - di]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(f1 != f0, (level - f0) / (f1 - f0), 0.5), 0.0, 1.0)
+    px = x[ei] + t * (x[ei + di] - x[ei])
+    py = y[ej] + t * (y[ej + 1 - di] - y[ej])
+
+    out = []
+    visited = np.zeros(len(successor), bool)
+    for start in starts:
+        if visited[start]:
+            continue
+        loop = []
+        e = int(start)
+        while not visited[e]:
+            visited[e] = True
+            loop.append(e)
+            e = int(successor[e])
+        out.append(np.stack([px[loop], py[loop]], axis=1))
+    return out
+
+
+def simplify_closed(polygon: np.ndarray, tolerance: float) -> np.ndarray:
+    """Douglas-Peucker simplification of a closed polygon (M, 2): every dropped vertex is
+    within ``tolerance`` of the kept polygon. The vertex farthest from the first is kept
+    as the second anchor."""
+    p = np.asarray(polygon, float)
+    if len(p) <= 4:
+        return p
+    far = int(np.argmax(np.sum((p - p[0]) ** 2, axis=1)))
+    keep = np.zeros(len(p), bool)
+    keep[[0, far]] = True
+    ring = np.concatenate([p, p[:1]])
+    stack = [(0, far), (far, len(p))]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        seg = ring[b] - ring[a]
+        rel = ring[a + 1:b] - ring[a]
+        length = float(np.hypot(*seg))
+        if length > 0:
+            d = np.abs(seg[0] * rel[:, 1] - seg[1] * rel[:, 0]) / length
+        else:
+            d = np.hypot(rel[:, 0], rel[:, 1])
+        k = int(np.argmax(d))
+        if d[k] > tolerance:
+            keep[a + 1 + k] = True
+            stack += [(a, a + 1 + k), (a + 1 + k, b)]
+    return p[keep]
