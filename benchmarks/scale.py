@@ -249,9 +249,10 @@ def run_child(spec: dict) -> dict:
         clock.switch("read")
         row = run_batch([Job(cloud, config)], tmp / "out")[0]
         timing = clock.stop()
-        if row.status != "ok":
-            return {"error": row.message}
-        doc = json.loads((tmp / "out" / f"{cloud.stem}.json").read_text())
+        result = tmp / "out" / f"{cloud.stem}.json"
+        if not result.exists():  # not fitted (a "suspect" fit is written and measured)
+            return {**spec, "error": row.message}
+        doc = json.loads(result.read_text())
         surface = NurbsSurface.from_dict(doc["surface"])
         from psonurbs.formats.clouds import read_cloud
 
@@ -260,7 +261,8 @@ def run_child(spec: dict) -> dict:
         scale = SIGMA if spec["kind"] == "ripples" else float(np.linalg.norm(np.ptp(points, axis=0)))
         scores = {k: v / scale for k, v in scores.items()}
         return {**spec, "points": int(len(points)), **timing, **scores, "claimed_rmse": doc["metrics"]["rmse"] / scale,
-                "topology": doc["topology"], "polish_iterations": doc["fit"].get("polish_iterations")}
+                "topology": doc["topology"], "polish_iterations": doc["fit"].get("polish_iterations"),
+                "status": row.status}
 
 
 # ---- the table -------------------------------------------------------------
