@@ -23,9 +23,9 @@ PLY, fit, tessellate, write the files), so the peak memory is its own. The stage
 told apart by wrapping the pipeline's functions (outermost call wins):
 
     read         reading the cloud file
-    organise     validation, de-duplication, normalisation
+    organise     validation, de-duplication, normalisation, the local outlier test
     parametrise  the first (u, v) (and with ``topology: auto`` the choice of topology)
-    swarm        the robust start (classical inliers), the swarm and its validation
+    swarm        the robust start (the classical fit's weights), the swarm and its validation
     polish       both polishes, the leave-one-out smoothing between them (and a big
                  cloud's last rounds on every point)
     refine       the joint refinement and its anchoring
@@ -68,9 +68,10 @@ WRAPPED = {
     ("psonurbs.fitting.pipeline", "organise"): ("organise", None),
     ("psonurbs.fitting.pipeline", "parametrise_for"): ("parametrise", None),
     ("psonurbs.fitting.pipeline", "choose_topology"): ("parametrise", None),
-    ("psonurbs.fitting.pipeline", "classical_inliers"): ("swarm", None),
+    ("psonurbs.fitting.pipeline", "local_outliers"): ("organise", None),
+    ("psonurbs.fitting.pipeline", "classical_weights"): ("swarm", None),
     ("psonurbs.fitting.pipeline", "minimise"): ("swarm", None),
-    ("psonurbs.fitting.pipeline", "validated"): ("swarm", None),
+    ("psonurbs.fitting.pipeline", "held_out_choice"): ("swarm", None),
     ("psonurbs.fitting.pipeline", "polish"): ("polish", None),
     ("psonurbs.fitting.pipeline", "refine_jointly"): ("refine", None),
     ("psonurbs.fitting.pipeline", "anchored"): ("refine", None),
