@@ -15,6 +15,7 @@ from psonurbs.fitting.pipeline import fit_points
 from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.fitting.topology import layout_for
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.trim import Trim, polygon_loop
 
 
 def least_squares(topology: str, size, degrees, uv: np.ndarray, points: np.ndarray) -> NurbsSurface:
@@ -198,3 +199,22 @@ def test_fail_suspect_makes_it_a_gate_failure(tmp_path, fake_fit, cloud):
 
 def test_fail_suspect_passes_a_good_fit(tmp_path, fake_fit, cloud):
     assert fake_fit.run("fit", cloud, "-o", tmp_path / "out", "-q", "--fail-suspect").exit_code == 0
+
+
+def test_a_trimmed_face_is_judged_inside_its_loops_only():
+    """The sheet folded along u = 1/2, trimmed to u < 0.4: the fold lies beyond the loops,
+    outside the face the user gets, and is not flagged; trimmed to u < 0.7 it is inside."""
+    rng = np.random.default_rng(2)
+    uv = rng.random((3000, 2))
+    pts = np.column_stack([np.sin(np.pi * uv[:, 0]), uv[:, 1], np.zeros(len(uv))])
+    surface = least_squares("open", (8, 5), (3, 3), uv, pts)
+    whole = check_fit(surface, pts)
+    assert whole.folded > MAX_FOLDED
+
+    def trimmed_to(u_max):
+        box = np.array([[0.05, 0.05], [u_max, 0.05], [u_max, 0.95], [0.05, 0.95]])
+        return check_fit(surface, pts, trim=Trim((polygon_loop(box),)))
+
+    assert trimmed_to(0.4).folded == 0.0 and not trimmed_to(0.4).suspect
+    assert trimmed_to(0.7).folded > MAX_FOLDED
+    assert trimmed_to(0.4).extent_ratio <= whole.extent_ratio

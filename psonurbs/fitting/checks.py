@@ -18,6 +18,10 @@ in units of the cloud's bounding-box diagonal:
   where there are no data at all. A patch over a round or holed footprint leaves its
   corners uncovered, so only a surface that is mostly away from the data is suspect.
 
+On a trimmed face only the samples inside the trim loops are judged: the surface beyond
+them is not part of what the user gets (the mesh and the CAD files are trimmed), so a fold
+or an excursion there is no fault of the fit.
+
 A fit is *suspect* when any figure passes its bound (``MAX_EXTENT_RATIO``,
 ``MAX_NET_EXTENT_RATIO``, ``MAX_FOLDED``, ``MAX_UNCOVERED``); :attr:`FitChecks.warnings`
 says which, in words for the user. The files of a suspect fit are written as usual.
@@ -30,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.trim import Trim
 
 GRID = 64  # samples along each direction of the domain
 UNCOVERED_DISTANCE = 0.05  # of the diagonal: surface this far from every point has no data
@@ -79,11 +84,14 @@ def extent_ratio(points: np.ndarray, others: np.ndarray) -> float:
     return float(np.linalg.norm(np.ptp(both, axis=0)) / np.linalg.norm(np.ptp(points, axis=0)))
 
 
-def flipped_share(normals: np.ndarray) -> float:
+def flipped_share(normals: np.ndarray, judged: np.ndarray | None = None) -> float:
     """Share of the neighbouring pairs of a (n_u, n_v, 3) grid of normals that point in
-    opposite directions; pairs with a vanishing normal (a sphere's pole) are not judged."""
+    opposite directions; pairs with a vanishing normal (a sphere's pole) are not judged,
+    nor pairs with a sample outside ``judged`` (n_u, n_v), when given."""
     length = np.linalg.norm(normals, axis=2)
     ok = length > 1e-9 * max(float(np.median(length)), 1e-300)
+    if judged is not None:
+        ok &= judged
     unit = normals / np.where(ok, length, 1.0)[..., None]
     flips, pairs = 0, 0
     for a, b, valid in ((unit[1:], unit[:-1], ok[1:] & ok[:-1]), (unit[:, 1:], unit[:, :-1], ok[:, 1:] & ok[:, :-1])):
@@ -92,15 +100,19 @@ def flipped_share(normals: np.ndarray) -> float:
     return flips / max(pairs, 1)
 
 
-def check_fit(surface: NurbsSurface, points: np.ndarray, grid: int = GRID) -> FitChecks:
-    """The self-check figures of ``surface`` against the cloud ``points`` (N, 3)."""
+def check_fit(surface: NurbsSurface, points: np.ndarray, grid: int = GRID, trim: Trim | None = None) -> FitChecks:
+    """The self-check figures of ``surface`` against the cloud ``points`` (N, 3); with a
+    ``trim``, of the trimmed face (the samples inside its loops)."""
     us, vs = surface.parameter_grid(grid, grid)
     uu, vv = np.meshgrid(us, vs, indexing="ij")
     s, s_u, s_v = surface.derivatives(uu.ravel(), vv.ravel())
+    judged = np.ones(len(s), bool) if trim is None else trim.contains(np.column_stack([uu.ravel(), vv.ravel()]))
+    if not judged.any():  # a face thinner than the sample spacing: judge the whole surface
+        judged[:] = True
     tree = cKDTree(points)
     spacing = float(np.median(tree.query(points, k=2)[0][:, 1]))
     far = max(UNCOVERED_DISTANCE * float(np.linalg.norm(np.ptp(points, axis=0))), 2.0 * spacing)
-    return FitChecks(extent_ratio=extent_ratio(points, s),
+    return FitChecks(extent_ratio=extent_ratio(points, s[judged]),
                      net_extent_ratio=extent_ratio(points, surface.control_points.reshape(-1, 3)),
-                     folded=flipped_share(np.cross(s_u, s_v).reshape(grid, grid, 3)),
-                     uncovered=float(np.mean(tree.query(s)[0] > far)))
+                     folded=flipped_share(np.cross(s_u, s_v).reshape(grid, grid, 3), judged.reshape(grid, grid)),
+                     uncovered=float(np.mean(tree.query(s[judged])[0] > far)))

@@ -237,7 +237,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False)
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
-        checks = check_fit(surface, cloud.points)
+        checks = check_fit(surface, cloud.points, trim=face.trim)
     world = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                          cloud.frame.to_world(surface.control_points), surface.weights,
                          surface.closed_u, surface.closed_v)
