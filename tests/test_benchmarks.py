@@ -219,6 +219,10 @@ def test_both_scorers_agree_on_a_fit(tmp_path):
     doc["surface"]["trim"] = [{"degree": 1, "knots": [0, 0, 0.25, 0.5, 0.75, 1, 1],
                                "control_points": [[u0, v0], [u1, v0], [u1, v1], [u0, v1], [u0, v0]]}]
     (trimmed_out / "quarter_cylinder.json").write_text(json.dumps(doc))
+    grid = scorer.Surface(doc["surface"]).grid(*(np.linspace(lo, hi, 301) for lo, hi in ((lo_u, hi_u), (lo_v, hi_v))))
+    diagonal = float(np.linalg.norm(np.ptp(scorer.read_points(cloud), axis=0)))
+    cell = float(np.linalg.norm(grid[1:, 1:] - grid[:-1, :-1], axis=2).max()) / diagonal
+    assert 1e-3 < cell < 1e-2, cell  # about 1/300 of the sheet
     for directory in (out, trimmed_out):
         outside = subprocess.run([sys.executable, str(OUTSIDE / "score.py"), str(cloud), str(directory), "--gt",
                                   str(truth)], capture_output=True, text=True, timeout=300)
@@ -227,6 +231,10 @@ def test_both_scorers_agree_on_a_fit(tmp_path):
         assert theirs["trimmed"] == ours["trimmed"] == (directory == trimmed_out)
         floor = 2e-6  # the outside scorer's: float32 distances on a 301 x 301 mesh
         for key in ("rmse", "p99", "max", "truth_rms", "truth_max", "cover_rms", "cover_max", "mesh_vs_nurbs"):
-            assert abs(ours[key] - theirs[key]) <= 0.02 * theirs[key] + floor, (directory.name, key, ours, theirs)
+            # the outside scorer trims by dropping every cell of its mesh that a loop crosses, so
+            # its face ends up to one cell inside the loops: the distances of the truth to the
+            # face (cover) may differ by up to one cell's diagonal
+            allowed = 0.02 * theirs[key] + floor + (cell if key.startswith("cover") and theirs["trimmed"] else 0.0)
+            assert abs(ours[key] - theirs[key]) <= allowed, (directory.name, key, ours, theirs)
         assert ours["overhang"] == pytest.approx(theirs["overhang"], abs=1e-3)
         assert ours["claimed_rmse"] == theirs["claimed_rmse"] and ours["curve_ok"] == theirs["curve_ok"]
