@@ -218,7 +218,8 @@ def plot_domain(surface, trim, points: np.ndarray | None, title: str, path: Path
     loops = 0 if trim is None else len(trim.loops)
     ax.set_title(f"{title}: parameter domain, knot lines (grey), {loops} trim loop{'s' if loops != 1 else ''}",
                  fontsize=10)
-    ax.legend(loc="upper right", fontsize=8)
+    if ax.get_legend_handles_labels()[1]:  # foot points or loops drawn: say which is which
+        ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     return _save(fig, path)
 
