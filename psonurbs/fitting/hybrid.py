@@ -68,18 +68,12 @@ class KnotWeightSearch:
                               Polytope.ordered(cv, self.gaps[1]).embed(self.dimension, cu),
                               Polytope.box(lo, hi))
 
-    @staticmethod
-    def uniform(layout: NetLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(weights, inner knots u, inner knots v) of the classical fit: unit weights, uniform knots."""
-        cu, cv = layout.inner_counts
-        return np.ones(layout.n_free), uniform_inner_knots(cu), uniform_inner_knots(cv)
-
     def classical(self) -> np.ndarray:
         """Uniform knots, unit weights and the configured smoothing: the classical fit."""
         cu, cv = self.counts
         smoothing = np.clip(np.log10(max(self.solver.smoothing, 1e-300)), *SMOOTHING_RANGE)
-        return np.concatenate([np.arange(1, cu + 1) / (cu + 1), np.arange(1, cv + 1) / (cv + 1),
-                               np.zeros(self.layout.n_free), [smoothing]])
+        return np.concatenate([uniform_inner_knots(cu), uniform_inner_knots(cv), np.zeros(self.layout.n_free),
+                               [smoothing]])
 
     def initial_swarm(self, n_particles: int, rng: np.random.Generator) -> np.ndarray:
         """The classical fit, then particles spread from it towards random positions."""

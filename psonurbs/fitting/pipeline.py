@@ -113,7 +113,7 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
                   for k in (0, 1)]
         return surface.restricted(*extent)
     return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True,
-                  point_weights=point_weights)[1]
+                  point_weights=point_weights).surface
 
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,

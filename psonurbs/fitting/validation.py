@@ -124,7 +124,7 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
         control = solver.solve(layout.rows(uv[fitted], *knots), points[fitted], c(fitted))
         first.append(np.linalg.norm(layout.rows(uv[judged], *knots) @ control - points[judged], axis=1))
         corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS),
-                           point_weights=c(fitted))[2]
+                           point_weights=c(fitted)).uv
         solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], *knots,
                                                      c(seen)))
         control = solver.solve(layout.rows(corrected, *knots), points[fitted], c(fitted))
