@@ -62,7 +62,8 @@ def test_a_lone_corner_point_is_judged_with_its_neighbours_but_not_vouched_for(s
     # the surface's own corner beyond a gap: the corner point's neighbours are the data's
     # corner, whose own neighbourhoods (denser) do not reach back to it, so it links to
     # none; it joins their piece (the loss judges it against where they lie), but nothing
-    # vouches for it (junk just beyond an edge looks the same)
+    # vouches for it (junk just beyond an edge looks the same): it may not steer the
+    # parametrisation, but the loss spares it (on their quadric, it is consistent)
     rng = np.random.default_rng(seed)
     x, y = 0.06 + 0.94 * rng.random((2, 5000))
     x, y = np.r_[x, 0.0], np.r_[y, 0.0]
@@ -72,6 +73,7 @@ def test_a_lone_corner_point_is_judged_with_its_neighbours_but_not_vouched_for(s
     pieces = verdict.neighbourhoods()
     assert not verdict.outliers.any() and verdict.support[-1]
     assert pieces.on_main_piece.all() and pieces.vouched[:-1].all() and not pieces.vouched[-1]
+    assert pieces.spared.all() and pieces.lone_consistent[-1] and not pieces.lone_consistent[:-1].any()
     assert (pieces.index[-1] >= 0).sum() == pieces.index.shape[1]  # its neighbours count for it
 
 

@@ -53,8 +53,14 @@ def test_a_neighbourhood_the_fit_misses_keeps_its_weight_and_lone_junk_loses_it(
     assert w[108:132].min() > 0.95  # inside the stretch: its neighbours are as far off
     assert w[300] == 0.0 and np.all(w[200:210] == 0.0)
     assert np.all(biweights(d)[100:140] == 0.0)  # without neighbours, the stretch would go
-    vouched[300] = True  # its neighbours vouch for it (the fit folds there): a little weight
-    assert biweights(d, Neighbourhoods(index, main, vouched))[300] == VOUCHED_FLOOR
+    vouched[300] = True  # its neighbours vouch for it (the fit folds there): a little weight,
+    cutoff = CUTOFF_SIGMAS * 1.4826 * np.median(d)  # and no more pull w d than the floor's at the cut-off
+    for far in (0.02, 2.0):
+        d[300] = far
+        w = biweights(d, Neighbourhoods(index, main, vouched))[300]
+        assert w > 0.0 and np.isclose(w * far, VOUCHED_FLOOR * cutoff, rtol=1e-9)
+    d[300] = 0.5 * cutoff  # within the cut-off, the biweight's own (above the floor)
+    assert np.isclose(biweights(d, Neighbourhoods(index, main, vouched))[300], 0.5625)
 
 
 def wave_grid(junk_height=None):

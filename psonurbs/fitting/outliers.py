@@ -90,6 +90,14 @@ class Neighbourhoods:
     index: np.ndarray  # (N, k) agreeing neighbours on the main piece, -1 where none
     on_main_piece: np.ndarray  # (N,) bool: on the largest piece
     vouched: np.ndarray  # (N,) bool: on it, and within SUPPORT_SIGMAS of its neighbours' quadric
+    lone_consistent: np.ndarray | None = None  # (N,) bool: a lone point (below) as near its neighbours' quadric
+
+    @property
+    def spared(self) -> np.ndarray:
+        """(N,) the points the robust loss never leaves out: the vouched ones and the lone
+        points as consistent with their neighbours (the corner of a sparse edge). Only the
+        vouched may steer the parametrisation (junk just beyond an edge looks lone too)."""
+        return self.vouched if self.lone_consistent is None else self.vouched | self.lone_consistent
 
     def median(self, values: np.ndarray) -> np.ndarray:
         """(N,) median of the neighbours' values (0 for a point without neighbours)."""
@@ -149,13 +157,15 @@ class LocalOutliers:
         # a support point linked to none (a piece of one) is no piece of its own: it is
         # judged with the neighbours it agrees with, but nothing vouches for it (a corner
         # of a sparse edge and junk just beyond an edge both look so: their neighbours'
-        # denser quadrics do not reach back to them)
+        # denser quadrics do not reach back to them); the loss spares it if it lies as
+        # near their quadric as a vouched point, with a bounded say
         lone = support & (sizes[piece] <= 1) & joins
         main = main | (~support & joins)
-        vouched = main & (self.statistic[keep] <= SUPPORT_SIGMAS)
+        consistent = self.statistic[keep] <= SUPPORT_SIGMAS
+        vouched = main & consistent
         main = main | lone
         on_main = valid & main[np.maximum(index, 0)]
-        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched)
+        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched, lone & consistent)
 
     def to_dict(self, diagonal: float = 1.0) -> dict:
         """For the JSON: the count, the noise scale (in the units of ``diagonal``, the

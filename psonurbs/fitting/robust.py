@@ -22,8 +22,12 @@ sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_
 it is left out only when it is far from the fit *and* from where its neighbours are.
 Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
 A point the local test vouched for (on the main piece, within a few sigmas of the
-surface its neighbours describe) is never left out: where the fit folds or tears between
-it and its neighbours, the loss may lower its say to ``VOUCHED_FLOOR``, not to nothing.
+surface its neighbours describe), or a lone one as near it (the corner of a sparse edge,
+which the local test will not vouch for: junk just beyond an edge looks the same), is
+never left out: where the fit folds, tears or cannot reach between it and its neighbours,
+the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)`` beyond the cut-off
+c_i, so that its pull w_i d_i stays below the floor's at the cut-off however far it is
+(a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -61,10 +65,12 @@ def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = Non
     scale = residual_scale(distances)
     if neighbourhoods is not None:
         scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
-    u = np.minimum(distances / (CUTOFF_SIGMAS * scale), 1.0)
+    ratio = distances / (CUTOFF_SIGMAS * scale)
+    u = np.minimum(ratio, 1.0)
     weights = (1.0 - u * u) ** 2
     if neighbourhoods is not None:
-        weights = np.where(neighbourhoods.vouched, np.maximum(weights, VOUCHED_FLOOR), weights)
+        floor = VOUCHED_FLOOR / np.maximum(ratio, 1.0)  # its pull w d never above the floor's at the cut-off
+        weights = np.where(neighbourhoods.spared, np.maximum(weights, floor), weights)
     return weights
 
 
