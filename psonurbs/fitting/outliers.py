@@ -193,7 +193,7 @@ def shared_neighbours(index: np.ndarray, order: np.ndarray | None = None) -> np.
     n, k = index.shape
     valid = index >= 0
     rows = np.repeat(np.arange(n), k)[valid.ravel()]
-    member = sp.csr_array((np.ones(len(rows), np.int32), (rows, index[valid])), shape=(n, n))
+    member = sp.csr_array((np.ones(len(rows), np.int8), (rows, index[valid])), shape=(n, n))  # counts <= k < 128
     transposed = member.T.tocsr()
     out = np.zeros((n, k), np.int64)
     for start in range(0, n, CHUNK):
