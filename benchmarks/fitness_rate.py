@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Swarm fitness evaluations per second: one particle at a time against the batched fitness.
 
-    python benchmarks/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20]
+    python benchmarks/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20] [--stages]
 
 For each cubic open net (8 x 8, 12 x 12, 20 x 20 by default) it builds the swarm's
 fitness on a Franke surface sampled at ``--points`` scattered points (noise 0.2% of the
@@ -18,6 +18,12 @@ memory as in a fit (:mod:`psonurbs.run.heap`). The
 best round of each is reported, as wall time and as process CPU time (on a busy machine
 the CPU time is the steadier figure), with the largest relative difference between the
 two fitness values (they compute the same leave-one-out RMSE).
+
+With ``--stages`` a second table splits the batched fitness into its stages, each timed
+on its own over the swarm's groups of particles (as the fitness groups them), after a
+write of 64 MB that clears the caches as the previous stage does in a fit: the rows
+(``stacked_rows``), the normal matrices, the banded factorisation, the solve and
+residuals, the selected inverse and the leverages, in CPU ms per evaluation.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from psonurbs.fitting.banded import StackedBandedCholesky  # noqa: E402
 from psonurbs.fitting.hybrid import KnotWeightSearch  # noqa: E402
 from psonurbs.fitting.solve import RegularisedLeastSquares  # noqa: E402
 from psonurbs.geometry.net import NetLayout  # noqa: E402
@@ -68,12 +75,48 @@ def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tup
     return best, values
 
 
+def stage_costs(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> dict[str, float]:
+    """CPU ms per evaluation of each stage of the batched fitness, best of ``rounds``,
+    each timed from cold caches over all groups of the swarm."""
+    stacked, size = search.stacked, search.group_size
+    groups = [swarm[k:k + size] for k in range(0, len(swarm), size)]
+    smoothing = [10.0 ** g[:, -1] for g in groups]
+    rows = [search.rows(g) for g in groups]
+    normal = [stacked.normal_matrices(r, None, s) for r, s in zip(rows, smoothing)]
+    order = stacked.order
+    factors = [StackedBandedCholesky(m, order.half_bandwidth, order.block) for m in normal]
+    runs = {
+        "rows": lambda: [search.rows(g) for g in groups],
+        "normal matrices": lambda: [stacked.normal_matrices(r, None, s) for r, s in zip(rows, smoothing)],
+        "factorisation": lambda: [StackedBandedCholesky(m, order.half_bandwidth, order.block) for m in normal],
+        "fit": lambda: [stacked.fit(r, search.points, s) for r, s in zip(rows, smoothing)],
+        "selected inverse": lambda: [f.selected_inverse() for f in factors],
+        "leverages": lambda: [stacked.leverages(r, f) for r, f in zip(rows, factors)],
+        "whole fitness": lambda: search.fitness(swarm),
+    }
+    evict = np.zeros(2 ** 23)
+    best = dict.fromkeys(runs, np.inf)
+    with threadpool_limits(limits=1):
+        for _ in range(rounds):
+            for name, run in runs.items():
+                evict += 1.0  # 64 MB through the caches
+                cpu = time.process_time()
+                run()
+                best[name] = min(best[name], 1e3 * (time.process_time() - cpu) / len(swarm))
+    # the fit holds the normal matrices and the factorisation; the leverages the selected inverse
+    solve = best["fit"] - best["normal matrices"] - best["factorisation"]
+    return {"rows": best["rows"], "normal matrices": best["normal matrices"], "factorisation": best["factorisation"],
+            "solve + residuals": solve, "selected inverse": best["selected inverse"],
+            "leverages": best["leverages"] - best["selected inverse"], "whole fitness": best["whole fitness"]}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--points", type=int, default=1500)
     ap.add_argument("--particles", type=int, default=40)
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--nets", type=int, nargs="*", default=[8, 12, 20])
+    ap.add_argument("--stages", action="store_true", help="also the cost of each stage of the batched fitness")
     args = ap.parse_args(argv)
     keep_freed_memory()  # as a fitting process does (psonurbs.run.heap)
     print(f"{args.points} points, {args.particles} particles, best of {args.rounds} interleaved rounds, 1 thread")
@@ -90,6 +133,16 @@ def main(argv=None) -> int:
         b, a = per_eval["before"], per_eval["after"]
         print(f"| {net} x {net} | {b[0]:.3f}, {b[1]:.3f} | {a[0]:.3f}, {a[1]:.3f} | {1e3 / b[0]:.0f} | "
               f"{1e3 / a[0]:.0f} | {b[0] / a[0]:.1f}x, {b[1] / a[1]:.1f}x | {diff:.1e} |", flush=True)
+    if args.stages:
+        print("\nstages of the batched fitness, cpu ms per evaluation (each from cold caches)")
+        for k, net in enumerate(args.nets):
+            rng = np.random.default_rng(net)
+            search = search_for(net, args.points, rng)
+            costs = stage_costs(search, search.initial_swarm(args.particles, rng), args.rounds)
+            if k == 0:
+                print("| net | " + " | ".join(costs) + " |")
+                print("|---" * (len(costs) + 1) + "|")
+            print(f"| {net} x {net} | " + " | ".join(f"{c:.3f}" for c in costs.values()) + " |", flush=True)
     return 0
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from psonurbs.fitting.footprint import footprint, footprint_notes
+from psonurbs.fitting import footprint as footprint_module
+from psonurbs.fitting.footprint import footprint, footprint_notes, well_spread
 from psonurbs.geometry.basis import clamped_knots
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import signed_area
@@ -115,3 +116,35 @@ def test_sampling_gaps_of_a_random_sample_are_not_holes(seed):
     # outline (each gave a spurious hole loop before small holes were covered)
     face = fit_footprint(sample(ragged_outline, 1500, seed=seed))
     assert face.trim is not None and face.loops == 1 and face.points_outside == 0
+
+
+def test_a_big_footprint_drawn_from_a_well_spread_subsample_holds_every_point(monkeypatch):
+    """12000 points of a rectangle with a hole (denser towards u = 0.6) and a detached
+    patch of 200: the footprint drawn from some 2000 of them has the loops of that of all
+    of them, every point of the face inside it (none lost between the subsample's
+    boundary and the data's), the patch counted over every point."""
+    def region(u, v):
+        return (u < 0.6) & (v < 0.8) & ((u - 0.3) ** 2 + (v - 0.4) ** 2 > 0.12 ** 2)
+    main = sample(region, 12000, seed=11, density=lambda u, v: 0.3 + 0.7 * u / 0.6)
+    patch = 0.85 + 0.08 * np.random.default_rng(12).random((200, 2))
+    uv = np.concatenate([main, patch])
+    whole = fit_footprint(uv)
+    monkeypatch.setattr(footprint_module, "FOOTPRINT_POINTS", 2000)
+    drawn = fit_footprint(uv)
+    assert whole.loops == drawn.loops == 2
+    assert whole.fragments == drawn.fragments == 1 and whole.fragment_points == drawn.fragment_points == 200
+    assert drawn.points_outside == 200 and 200 <= whole.points_outside <= 203  # (all: a few hull points too)
+    assert drawn.trim.contains(main).all() and not drawn.trim.contains(patch).any()
+    assert drawn.empty_share == pytest.approx(whole.empty_share, abs=0.01)
+    assert drawn.spacing > 2 * whole.spacing  # the subsample's spacing
+
+
+def test_a_well_spread_subsample_thins_the_dense_and_keeps_the_sparse():
+    rng = np.random.default_rng(13)
+    dense = rng.random((20000, 2)) * [0.5, 1.0]
+    strays = [0.6, 0.0] + rng.random((30, 2)) * [0.4, 1.0]  # 30 points over the other half
+    x = np.concatenate([dense, strays])
+    kept = well_spread(x, 2000)
+    assert np.all(np.diff(kept) > 0) and 1000 <= len(kept) <= 2500
+    assert np.isin(np.arange(20000, 20030), kept).all()  # every stray (one per cell)
+    np.testing.assert_array_equal(kept, well_spread(x, 2000))  # fixed

@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 from conftest import franke_z
 
-from psonurbs.fitting.outliers import MIN_POINTS, Neighbourhoods, local_outliers
+from psonurbs.fitting.outliers import (
+    MIN_POINTS,
+    NEIGHBOURS,
+    Neighbourhoods,
+    local_outliers,
+    nearest_among,
+    shared_neighbours,
+    spatial_order,
+)
 
 
 def normalised(points: np.ndarray) -> np.ndarray:
@@ -131,3 +139,37 @@ def test_neighbourhood_median_skips_missing_neighbours():
     values = rng.random(40)
     expected = [np.median(values[r[r >= 0]]) if (r >= 0).any() else 0.0 for r in index]
     np.testing.assert_allclose(Neighbourhoods(index, np.ones(40, bool), np.ones(40, bool)).median(values), expected)
+
+
+@pytest.mark.parametrize("grid", [False, True], ids=["scattered", "grid"])
+def test_every_point_is_judged_against_its_nearest_support_points(grid):
+    """The second pass searches only where a neighbour is no support point (every point
+    when distances are tied, as on a grid): the neighbours it judges with are still each
+    point's nearest support points, as a search of every point finds them."""
+    rng = np.random.default_rng(3)
+    if grid:
+        g = np.linspace(0.0, 1.0, 60)
+        x, y = (a.ravel() for a in np.meshgrid(g, g))
+    else:
+        x, y = rng.random((2, 3600))
+    pts = np.column_stack([x, y, 0.2 * np.sin(3 * x) * y])
+    pts[:150] = rng.uniform(pts.min(0), pts.max(0) + [0, 0, 0.5], (150, 3))  # junk
+    pts = normalised(pts)
+    verdict = local_outliers(pts)
+    assert verdict.outliers[:150].sum() > 100 and not verdict.support.all()
+    np.testing.assert_array_equal(verdict.neighbours, nearest_among(pts, verdict.support, NEIGHBOURS).index)
+    # the points taken in a spatial order: the same neighbours
+    order = spatial_order(pts)
+    np.testing.assert_array_equal(nearest_among(pts, verdict.support, NEIGHBOURS, order).index,
+                                  verdict.neighbours[order])
+
+
+def test_shared_neighbours_are_counted_as_sets_intersect():
+    rng = np.random.default_rng(4)
+    n, k = 300, 6
+    index = np.array([rng.choice(np.delete(np.arange(n), i), k, replace=False) for i in range(n)])
+    index[rng.random((n, k)) < 0.2] = -1  # missing neighbours
+    sets = [set(row[row >= 0]) for row in index]
+    expected = np.array([[len(sets[i] & sets[j]) if j >= 0 else 0 for j in row] for i, row in enumerate(index)])
+    np.testing.assert_array_equal(shared_neighbours(index), expected)
+    np.testing.assert_array_equal(shared_neighbours(index, rng.permutation(n)), expected)

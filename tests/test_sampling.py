@@ -8,6 +8,7 @@ import pytest
 
 from psonurbs.config import config_from_dict
 from psonurbs.fitting import sampling
+from psonurbs.fitting.organise import organise
 from psonurbs.fitting.pipeline import fit_points
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import closest_parameters
@@ -99,3 +100,29 @@ def test_a_big_closed_cloud_is_fitted_the_same_twice_near_its_noise(monkeypatch)
     assert np.sqrt(np.mean(dist ** 2)) < 1.01 * 0.005
     on = first.surface.evaluate(uv[:, 0], uv[:, 1])
     assert np.sqrt(np.mean((np.hypot(on[:, 0], on[:, 1]) - 1) ** 2)) < 0.2 * 0.005
+
+
+def test_a_big_cloud_s_metrics_are_every_input_point_s_distance(monkeypatch):
+    """The finished fit's rmse and max_error take every input point, duplicates and the
+    junk left out before the fit included, from the parameters the finishing left them
+    at: the same as a global foot-point search of every point on the fitted surface."""
+    rng = np.random.default_rng(6)
+    x, y = rng.random((2, 2500))
+    points = np.c_[x, y, 0.3 * np.sin(2 * x) * np.cos(1.5 * y) + 0.01 * rng.normal(size=2500)]
+    points[:25] = rng.uniform(points.min(0), points.max(0), (25, 3)) + [0, 0, 1.0]
+    points = np.concatenate([points, points[rng.choice(2500, 200)]])  # 200 duplicates
+    monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
+    big = fit_points(points, config())
+    dist = closest_parameters(big.surface, points)[1]
+    assert big.metrics["points"] == 2700 and big.metrics["outliers"] == 25
+    assert big.metrics["rmse"] == pytest.approx(np.sqrt(np.mean(dist ** 2)), rel=1e-9)
+    assert big.metrics["max_error"] == pytest.approx(dist.max(), rel=1e-9)
+
+
+def test_every_input_point_knows_its_distinct_point():
+    rng = np.random.default_rng(7)
+    points = rng.random((500, 3))
+    points = points[rng.choice(500, 800)]  # every point several times, in no order
+    cloud = organise(points, (4, 4))
+    assert len(cloud) == len(np.unique(points, axis=0)) and cloud.duplicates == 800 - len(cloud)
+    np.testing.assert_array_equal(cloud.points[cloud.source], cloud.frame.to_local(points))

@@ -152,6 +152,22 @@ def test_banded_cholesky_solves_and_gives_the_inverse_inside_the_band(n, width, 
     np.testing.assert_allclose(selected * band, inverse * band, rtol=0, atol=1e-14)
 
 
+def test_banded_cholesky_in_place_gives_the_same_factors_and_inverse():
+    m = banded_spd(40, 9, 3, seed=4)
+    rhs = np.random.default_rng(1).normal(size=(3, 40, 3))
+    copied = StackedBandedCholesky(m, 9, 16)
+    expected = copied.solve(rhs), copied.selected_inverse().copy()
+    work = m.copy()
+    in_place = StackedBandedCholesky(work, 9, 16, overwrite=True)
+    assert not np.array_equal(work, m)  # the factorisation ran in the given array
+    np.testing.assert_array_equal(in_place.solve(rhs), expected[0])
+    np.testing.assert_array_equal(in_place.selected_inverse(), expected[1])
+    # the selected inverse reuses the storage, and asking again gives the same entries
+    np.testing.assert_array_equal(in_place.selected_inverse(), expected[1])
+    band = np.abs(np.arange(40)[:, None] - np.arange(40)[None, :]) <= 9
+    np.testing.assert_allclose(expected[1] * band, np.linalg.inv(m) * band, rtol=0, atol=1e-14)
+
+
 def test_banded_cholesky_refuses_an_indefinite_matrix():
     m = banded_spd(12, 3, 2, seed=1)
     m[1, 5, 5] = -1.0

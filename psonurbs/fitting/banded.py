@@ -63,10 +63,13 @@ class StackedBandedCholesky:
     bandwidth ``w`` (in the order they are given), ``block`` columns at a time.
 
     Raises numpy.linalg.LinAlgError if any of the matrices is not positive definite.
+    With ``overwrite`` the factorisation works in ``matrices`` (a float array the caller
+    no longer needs) instead of a copy.
     """
 
-    def __init__(self, matrices: np.ndarray, half_bandwidth: int, block: int):
-        a = np.array(matrices, float)
+    def __init__(self, matrices: np.ndarray, half_bandwidth: int, block: int, overwrite: bool = False):
+        a = matrices if overwrite and isinstance(matrices, np.ndarray) and matrices.dtype == float \
+            else np.array(matrices, float)
         n = self.n = a.shape[1]
         self.steps = []
         for j0 in range(0, n, block):
@@ -80,6 +83,7 @@ class StackedBandedCholesky:
             if end > j1:
                 a[:, j1:end, j1:end] -= g @ below.transpose(0, 2, 1)
             self.steps.append((j0, j1, end, inverse, g))
+        self._storage = a  # the factors are in steps: the selected inverse reuses it
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``M^-1 rhs`` for rhs (P, n, k): forward then backward substitution by blocks."""
@@ -96,8 +100,10 @@ class StackedBandedCholesky:
 
     def selected_inverse(self) -> np.ndarray:
         """(P, n, n) holding the entries of ``M^-1`` inside the band (Takahashi's
-        recurrences, last block first); entries far outside the band are 0."""
-        s = np.zeros((self.steps[0][3].shape[0], self.n, self.n))
+        recurrences, last block first), in the factorisation's storage; the entries
+        outside the band are left as they were (0 for a banded M). Every entry the
+        recurrence reads it has written before, so it needs no zeroed array."""
+        s = self._storage
         for j0, j1, end, inverse, g in reversed(self.steps):
             diagonal = inverse.copy()
             if end > j1:

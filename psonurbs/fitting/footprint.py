@@ -21,6 +21,16 @@ From the points' final parameters (their foot points on the fitted surface):
    that keeps within half the margin of it, inside the domain, every loop simple
    and apart from the others, and the piece's points inside the face.
 
+A footprint of more than ``FOOTPRINT_POINTS`` points is drawn from a well-spread
+subsample of them (:func:`well_spread`: one per cell of a grid of about that many cells,
+so a sparse region keeps all its points), steps 2-5 at the subsample's spacing (the
+resolution of the holes, pieces and margin; the raster is as fine as for all the points,
+``MAX_RASTER``): every point then joins the piece of its nearest drawn point when within
+the alpha scale of it, and the raster cells around every point of the face are added to
+it, so that the loops hold them all (the subsample's own boundary lies inside the data's
+by a fraction of its spacing). The points off the face, the fragments' points and the
+distances are still those of every point.
+
 ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
 domain: an empty disc of radius at least ``ALPHA`` median spacings (as wide as the gaps the
 alpha shape opens; a cloud that fills its rectangle leaves only sampling gaps along the
@@ -60,6 +70,8 @@ MAX_CONTROL = 128  # control points of a cubic loop at most
 EDGE_OUTSET = 1e-9
 MAX_RASTER = 1500  # cells along the longer side of the footprint's raster
 AREA_GRID = 201  # surface area elements for the empty share
+FOOTPRINT_POINTS = 20_000  # a bigger footprint is drawn from a subsample of this many points...
+FOOTPRINT_SEED = 14  # ... a fixed one
 
 
 @dataclass(frozen=True)
@@ -75,7 +87,7 @@ class Footprint:
     points_outside: int  # points whose parameters lie outside the face
     fragments: int  # pieces of the footprint left out of the face
     fragment_points: int
-    spacing: float  # median spacing, in the surface's (approximate) length units
+    spacing: float  # median spacing (of the drawn points), in the surface's (approximate) length units
 
     def to_dict(self) -> dict:
         return {"trimmed": self.trim is not None, "loops": self.loops, "empty_share": self.empty_share,
@@ -179,7 +191,9 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
     good = np.flatnonzero(biweights(distances) > 0)  # gross outliers (weight 0) have no footprint
-    x = uv[good] * scale
+    every = uv[good] * scale
+    drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
+    x = every[drawn]
     spacing = local_spacing(x)
     tri, kept = alpha_triangles(x, spacing)
     if not kept.any():
@@ -191,16 +205,24 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     in_face = label == int(np.argmax(piece_area))
     face_points = np.unique(tri.simplices[in_face])
     others = np.setdiff1d(np.unique(tri.simplices[kept & ~in_face]), face_points)
+    if len(drawn) < len(good):  # a subsample's pieces, each point on the piece of its nearest drawn point
+        face_points, others = pieces_of_every_point(every, x, spacing, face_points, others)
+    else:
+        face_points, others = drawn[face_points], drawn[others]
 
     # raster of the face, its distance field, contoured one margin outside it
     margin = MARGIN * float(np.median(spacing))
-    lo, hi = np.minimum(x.min(axis=0), 0.0), np.maximum(x.max(axis=0), scale)  # the domain is [0, 1]^2
+    lo, hi = np.minimum(every.min(axis=0), 0.0), np.maximum(every.max(axis=0), scale)  # the domain is [0, 1]^2
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
     pad = margin + 3.0 * cell
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
+    if len(drawn) < len(good):  # and the four cell centres around every point on the face
+        at = np.floor((every[face_points] - [xs[0], ys[0]]) / cell).astype(int)
+        for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            mask[at[:, 0] + di, at[:, 1] + dj] = True
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     # the widest empty disc in the domain outside the face: a real gap, or sampling?
@@ -216,6 +238,41 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
     return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
                     int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
+
+
+def well_spread(x: np.ndarray, size: int) -> np.ndarray:
+    """Sorted indices of about ``size`` of the points x (N, 2), one per occupied cell of a
+    square grid (the first in a fixed random order): dense regions thinned to the cell's
+    side, sparse ones (a few points bridging a gap) kept whole. The side makes ``size``
+    cells of the bounding box, shrunk by the root of the share of them the points occupy
+    (a footprint that fills little of its box is not thinned more)."""
+    low, extent = x.min(axis=0), np.ptp(x, axis=0)
+    extent = np.maximum(extent, 1e-12 * max(float(extent.max()), 1e-300))
+    order = np.random.default_rng(FOOTPRINT_SEED).permutation(len(x))
+
+    def first_per_cell(side: float) -> tuple[np.ndarray, int]:
+        cell = np.floor((x[order] - low) / side).astype(np.int64)
+        _, first = np.unique(cell[:, 0] * (int(extent[1] / side) + 2) + cell[:, 1], return_index=True)
+        return first, (int(extent[0] / side) + 1) * (int(extent[1] / side) + 1)
+
+    side = float(np.sqrt(extent[0] * extent[1] / size))
+    first, cells = first_per_cell(side)
+    first, _ = first_per_cell(side * float(np.sqrt(min(len(first) / cells, 1.0))))
+    return np.sort(order[first])
+
+
+def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndarray, face: np.ndarray,
+                          others: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points (indices into ``every`` (N, 2)) on the face and on the other pieces
+    found from a subsample ``drawn`` (M, 2) of them (its spacing (M,), the indices of its
+    face's and the other pieces' points): a point is on the piece of its nearest drawn
+    point when within the alpha scale (``ALPHA`` times that point's spacing) of it, as
+    the alpha shape joins points; farther, it is on none (a stray)."""
+    piece = np.zeros(len(drawn), np.int8)  # 0: no piece, 1: the face, 2: another
+    piece[others], piece[face] = 2, 1
+    gap, nearest = cKDTree(drawn).query(every)
+    joined = np.where(gap <= ALPHA * spacing[nearest], piece[nearest], 0)
+    return np.flatnonzero(joined == 1), np.flatnonzero(joined == 2)
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,

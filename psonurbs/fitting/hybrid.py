@@ -19,7 +19,7 @@ import numpy as np
 
 from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
 from psonurbs.geometry.net import NetLayout
-from psonurbs.geometry.stacked_rows import CellLayout, stacked_rows
+from psonurbs.geometry.stacked_rows import CellLayout, StackedRows, stacked_rows
 
 from .pso import Polytope
 from .solve import RegularisedLeastSquares, weighted_rms
@@ -93,19 +93,27 @@ class KnotWeightSearch:
     def stacked(self) -> StackedLeastSquares:
         return StackedLeastSquares(self.solver, CellLayout(self.layout))
 
+    @property
+    def group_size(self) -> int:
+        """Particles evaluated together: their rows take about ``GROUP_BYTES``."""
+        return max(1, GROUP_BYTES // (8 * len(self.points) * int(np.prod(np.add(self.layout.degrees, 1)))))
+
+    def rows(self, positions: np.ndarray) -> StackedRows:
+        """The rows of the particles (P, D) at the search's points, all together."""
+        cu, cv = self.counts
+        return stacked_rows(self.stacked.cells, self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
+                            positions[:, cu:cu + cv])
+
     def fitness(self, positions: np.ndarray) -> np.ndarray:
         """The error of every particle (P,), all evaluated together; inf for a particle
         whose normal matrix is not numerically positive definite."""
         positions = np.atleast_2d(positions)
-        group = max(1, GROUP_BYTES // (8 * len(self.points) * int(np.prod(np.add(self.layout.degrees, 1)))))
+        group = self.group_size
         if len(positions) > group:
             return np.concatenate([self.fitness(positions[k:k + group]) for k in range(0, len(positions), group)])
-        cu, cv = self.counts
         try:
-            rows = stacked_rows(self.stacked.cells, self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
-                                positions[:, cu:cu + cv])
-            return self.stacked.errors(rows, self.points, 10.0 ** positions[:, -1], self.cross_validation,
-                                       self.point_weights)
+            return self.stacked.errors(self.rows(positions), self.points, 10.0 ** positions[:, -1],
+                                       self.cross_validation, self.point_weights)
         except np.linalg.LinAlgError:
             if len(positions) == 1:
                 return np.array([np.inf])

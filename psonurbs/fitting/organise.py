@@ -44,6 +44,7 @@ class Cloud:
     frame: Frame
     duplicates: int  # how many input points repeated an earlier one
     neighbourhoods: Neighbourhoods | None = None  # the local test's, for the robust loss
+    source: np.ndarray | None = None  # (input points,) each one's distinct point in ``points`` (-1: left out)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -109,11 +110,13 @@ def organise(points: np.ndarray, orders: tuple[int, int]) -> Cloud:
     """Validate, de-duplicate (keeping input order) and normalise a cloud."""
     points = np.asarray(points, float)
     check_fittable(points, orders)
-    _, first = np.unique(points, axis=0, return_index=True)
+    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
     keep = np.sort(first)
+    position = np.empty(len(first), np.int64)
+    position[np.argsort(first)] = np.arange(len(first))  # of each distinct row in keep
     distinct = points[keep]
     frame = principal_frame(distinct)
-    return Cloud(frame.to_local(distinct), frame, len(points) - len(keep))
+    return Cloud(frame.to_local(distinct), frame, len(points) - len(keep), source=position[inverse.ravel()])
 
 
 def subsample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:

@@ -38,6 +38,7 @@ support points, where junk faces the surface it floats over.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -66,6 +67,16 @@ class NeighbourhoodFits:
     spread: np.ndarray  # s_i: the neighbours' weighted RMS residual about it
     radius: np.ndarray  # r_i: RMS distance of the neighbours from their centroid, in the plane
     weights: np.ndarray  # (N, k) the neighbours' biweights in the robust fit
+
+    @staticmethod
+    def placed(rows: np.ndarray, fits: "NeighbourhoodFits") -> "NeighbourhoodFits":
+        """The fits of the points ``rows`` (a permutation of all N), in the points' order."""
+        out = {}
+        for name in ("residual", "spread", "radius", "weights"):
+            value = getattr(fits, name)
+            out[name] = np.empty_like(value)
+            out[name][rows] = value
+        return NeighbourhoodFits(**out)
 
     def replaced(self, rows: np.ndarray, other: "NeighbourhoodFits") -> "NeighbourhoodFits":
         """These fits with those of ``rows`` taken from ``other`` (fitted for those rows only)."""
@@ -119,6 +130,7 @@ class LocalOutliers:
     support: np.ndarray  # (N,) bool: points on a surface their neighbours describe
     neighbours: np.ndarray  # (N, k) each point's nearest support points (itself left out)
     agree: np.ndarray  # (N, k) bool: the neighbour has weight in the point's robust quadric
+    order: np.ndarray  # (N,) the points in a spatial order (:func:`spatial_order`)
 
     @property
     def inliers(self) -> np.ndarray:
@@ -146,7 +158,8 @@ class LocalOutliers:
         # piece, half on another can pass through both, but the far piece's own
         # neighbourhoods do not reach back) and sharing SHARED_NEIGHBOURS neighbours (two
         # pieces whose edges come close are not one surface)
-        links = valid & support[:, None] & (shared_neighbours(index) >= SHARED_NEIGHBOURS)
+        order = new[self.order[keep[self.order]]]
+        links = valid & support[:, None] & (shared_neighbours(index, order) >= SHARED_NEIGHBOURS)
         rows = np.repeat(np.arange(n), index.shape[1])[links.ravel()]
         graph = sp.csr_array((np.ones(len(rows)), (rows, index[links])), shape=(n, n))
         _, piece = connected_components(graph.multiply(graph.T), directed=False)
@@ -174,17 +187,32 @@ class LocalOutliers:
                 "threshold_sigmas": OUTLIER_SIGMAS, "neighbours": int(self.neighbours.shape[1])}
 
 
-def shared_neighbours(index: np.ndarray) -> np.ndarray:
-    """(N, k) how many neighbours point i shares with its neighbour ``index[i, s]`` (-1: none)."""
+def shared_neighbours(index: np.ndarray, order: np.ndarray | None = None) -> np.ndarray:
+    """(N, k) how many neighbours point i shares with its neighbour ``index[i, s]`` (-1: none, 0).
+
+    With A the (N, N) 0/1 matrix of the neighbourhoods (A[i, j] = 1 for j among i's), the
+    count is (A A^T)[i, index[i, s]]: sparse products of CHUNK rows at a time, about
+    k^2 terms per point. The points are renumbered in ``order`` (N,) first, when given: in
+    a spatial order the product's rows and columns are near each other in memory."""
+    if order is not None:
+        rank = np.empty(len(order), np.int64)
+        rank[order] = np.arange(len(order))
+        out = np.empty(index.shape, np.int64)
+        out[order] = shared_neighbours(np.where(index >= 0, rank[np.maximum(index, 0)], -1)[order])
+        return out
     n, k = index.shape
+    valid = index >= 0
+    rows = np.repeat(np.arange(n), k)[valid.ravel()]
+    member = sp.csr_array((np.ones(len(rows), np.int8), (rows, index[valid])), shape=(n, n))  # counts <= k < 128
+    transposed = member.T.tocsr()
     out = np.zeros((n, k), np.int64)
-    safe = np.where(index >= 0, index, n)  # a sentinel row of no neighbours
-    padded = np.vstack([np.where(index >= 0, index, -1), np.full((1, k), -2)])
-    for start in range(0, n, CHUNK // 8):  # (m, k, k, k) comparisons at once
-        rows = slice(start, min(n, start + CHUNK // 8))
-        mine = padded[rows][:, None, :, None]  # (m, 1, k, 1)
-        theirs = padded[safe[rows]][:, :, None, :]  # (m, k, 1, k)
-        out[rows] = np.sum((mine == theirs) & (mine >= 0), axis=(2, 3))
+    for start in range(0, n, CHUNK):
+        block = slice(start, min(n, start + CHUNK))
+        common = (member[block] @ transposed).tocsr()
+        mine = index[block]
+        local = np.repeat(np.arange(len(mine)), k)
+        counts = np.asarray(common[local, np.maximum(mine, 0).ravel()]).reshape(mine.shape)
+        out[block] = np.where(mine >= 0, counts, 0)
     return out
 
 
@@ -194,14 +222,34 @@ def biweight(residual: np.ndarray, scale: np.ndarray) -> np.ndarray:
     return (1.0 - u * u) ** 2
 
 
-def nearest_among(points: np.ndarray, among: np.ndarray, k: int) -> np.ndarray:
-    """(N, k) indices of each point's k nearest points of the mask ``among``, itself left out."""
+def spatial_order(points: np.ndarray) -> np.ndarray:
+    """(N,) the points (N, 3) in the order of a KD-tree's leaves: points near in space are
+    near in the order, so passes over neighbourhoods taken in it stay in the cache."""
+    return cKDTree(points).indices
+
+
+class Nearest(NamedTuple):
+    index: np.ndarray  # (M, k) the nearest points, nearest first
+    tied: np.ndarray  # (M,) bool: two of the k + 1 nearest (itself among them) are equally near
+
+
+def nearest_among(points: np.ndarray, among: np.ndarray, k: int, rows: np.ndarray | None = None) -> Nearest:
+    """The k nearest points of the mask ``among`` to each of the points ``rows`` (M,)
+    (default: all), itself left out. Rows in a spatial order are found faster.
+
+    Among equally near points the KD-tree's choice depends on what it holds (and how many
+    it is asked for); where none are, the nearest are the same whatever the mask holds
+    beyond them."""
+    rows = np.arange(len(points)) if rows is None else rows
+    if len(rows) == 0:
+        return Nearest(np.zeros((0, k), np.int64), np.zeros(0, bool))
     pool = np.flatnonzero(among)
-    _, nearest = cKDTree(points[pool]).query(points, k=k + 1)
-    nearest = pool[nearest.reshape(len(points), k + 1)]
-    own = nearest == np.arange(len(points))[:, None]
+    distance, found = cKDTree(points[pool]).query(points[rows], k=k + 1)
+    distance, found = distance.reshape(len(rows), k + 1), found.reshape(len(rows), k + 1)
+    nearest = pool[found]
+    own = nearest == rows[:, None]
     keep = np.where(own.any(axis=1)[:, None], ~own, np.arange(k + 1) < k)
-    return nearest[keep].reshape(len(points), k)
+    return Nearest(nearest[keep].reshape(len(rows), k), np.any(np.diff(distance, axis=1) == 0, axis=1))
 
 
 def _frame(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -319,19 +367,29 @@ def local_outliers(points: np.ndarray, neighbours: int = NEIGHBOURS) -> LocalOut
     n = len(points)
     if n < MIN_POINTS:
         return LocalOutliers(np.zeros(n, bool), np.zeros(n), 0.0, np.ones(n, bool),
-                             np.zeros((n, 0), np.int64), np.zeros((n, 0), bool))
+                             np.zeros((n, 0), np.int64), np.zeros((n, 0), bool), np.arange(n))
     k = min(neighbours, n - 1)
     everyone = np.arange(n)
-    nearest = nearest_among(points, np.ones(n, bool), k)
-    spread, radius = plain_spread(points, nearest)
+    order = spatial_order(points)  # every pass below takes the points in it (the same answers, faster)
+    nearest = np.empty((n, k), np.int64)
+    first_found = nearest_among(points, np.ones(n, bool), k, order)
+    nearest[order] = first_found.index
+    spread, radius = np.empty(n), np.empty(n)
+    spread[order], radius[order] = plain_spread(points, nearest[order])
     floor = float(np.median(spread))
-    first = fit_neighbourhoods(points, everyone, nearest, floor)
+    first = NeighbourhoodFits.placed(order, fit_neighbourhoods(points, order, nearest[order], floor))
     thickness = spread / np.maximum(radius, 1e-300)
     thin = thickness <= max(THICKNESS, THICKNESS_RATIO * float(np.median(thickness)))
     support = thin & (_statistic(first, _noise(first, everyone)) <= SUPPORT_SIGMAS)
-    among_support = nearest_among(points, support, k)
-    changed = np.flatnonzero(np.any(among_support != nearest, axis=1))  # the others' fits stand
+    # a point whose nearest neighbours are all support has them as its nearest support
+    # points, unless the tree chose among equal distances (a cloud on a grid has them
+    # everywhere, then every point is searched again; in floating-point data they are absent)
+    among_support = nearest.copy()
+    again = order if first_found.tied.any() else order[~np.all(support[nearest[order]], axis=1)]
+    among_support[again] = nearest_among(points, support, k, again).index
+    changed = order[np.any(among_support != nearest, axis=1)[order]]  # the others' fits stand
     second = first.replaced(changed, fit_neighbourhoods(points, changed, among_support[changed], floor))
     noise = _noise(second, support)
     statistic = _statistic(second, noise)
-    return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, among_support, second.weights > 0)
+    return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, among_support, second.weights > 0,
+                         order)

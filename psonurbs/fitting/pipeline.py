@@ -51,7 +51,7 @@ from .robust import (
     refreshed_weights,
     trusted_points,
 )
-from .sampling import big_cloud_sample, finished
+from .sampling import big_cloud_sample, every_foot_point, finished
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
 from .validation import held_out_choice
@@ -203,7 +203,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         cloud = organise(points, tuple(config.orders))
         local = local_outliers(cloud.points) if config.robust else None
         if local is not None:  # the outliers go before they can steer the parametrisation
-            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates, local.neighbourhoods())
+            renumbered = np.where(local.inliers, np.cumsum(local.inliers) - 1, -1)
+            cloud = Cloud(cloud.points[local.inliers], cloud.frame, cloud.duplicates, local.neighbourhoods(),
+                          renumbered[cloud.source])
         diag = cloud.frame.diagonal
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
@@ -233,7 +235,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             if done.point_weights is not None:
                 info["robust"] = {"loss": loss_summary(done.point_weights)}
         in_frame = cloud.frame.to_local(points)
-        uv, dist = closest_parameters(surface, in_frame)
+        uv, dist = closest_parameters(surface, in_frame) if big is None else \
+            every_foot_point(surface, in_frame, cloud.source, done.uv)
         face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False)
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()

@@ -59,6 +59,7 @@ def free_state(layout: NetLayout, surface: NurbsSurface) -> tuple[np.ndarray, np
 
 class Finished(NamedTuple):
     surface: NurbsSurface  # the fit of every point
+    uv: np.ndarray  # (N, 2) the points' foot points on it (of the points left out, on the subsample's fit)
     point_weights: np.ndarray | None  # (N,) the robust loss's weights on it (0: left out), None without ``robust``
     rounds: int  # rounds of parameter correction on every point (0: kept as it was)
 
@@ -79,9 +80,25 @@ def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoot
     point_weights = biweights(dist, neighbourhoods) if robust else None
     keep = np.ones(len(points), bool) if point_weights is None else point_weights > 0
     if np.sqrt(np.mean(dist[keep] ** 2)) <= RESOLUTION:
-        return Finished(surface, point_weights, 0)
+        return Finished(surface, uv, point_weights, 0)
     solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
     weights, inner_u, inner_v = free_state(layout, surface)
     result = polish(layout, solver, points[keep], uv[keep], weights, inner_u, inner_v, FINAL_ROUNDS,
                     realign=realign, align=False, point_weights=None if point_weights is None else point_weights[keep])
-    return Finished(result.surface, point_weights, result.rounds + 1)
+    uv[keep] = result.uv
+    return Finished(result.surface, uv, point_weights, result.rounds + 1)
+
+
+def every_foot_point(surface: NurbsSurface, points: np.ndarray, source: np.ndarray, uv: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Foot-point parameters (M, 2) and distances (M,) on the finished ``surface`` of the
+    input points (M, 3): from their distinct point's parameters ``uv[source]`` (``Finished.uv``)
+    where they have one (a local search: the polished points' are foot points on it
+    already), by a global search for those left out before the fit (``source`` -1, the
+    local test's outliers)."""
+    out_uv, out_dist = np.empty((len(points), 2)), np.empty(len(points))
+    fitted = source >= 0
+    out_uv[fitted], out_dist[fitted] = closest_parameters(surface, points[fitted], uv[source[fitted]])
+    if not fitted.all():
+        out_uv[~fitted], out_dist[~fitted] = closest_parameters(surface, points[~fitted])
+    return out_uv, out_dist

@@ -88,7 +88,7 @@ class StackedLeastSquares:
         slot_data = rows.gather(data)
         slot_weights = None if point_weights is None else rows.gather(np.asarray(point_weights, float))
         factor = StackedBandedCholesky(self.normal_matrices(rows, slot_weights, smoothing),
-                                       self.order.half_bandwidth, self.order.block)
+                                       self.order.half_bandwidth, self.order.block, overwrite=True)
         weighted = slot_data if slot_weights is None else slot_data * slot_weights[..., None]
         local = rows.per_block(np.matmul(rows.values.transpose(0, 2, 1), weighted))  # (P * cells, m, 3)
         index = self._column_index(n_particles)
