@@ -148,3 +148,21 @@ def test_a_well_spread_subsample_thins_the_dense_and_keeps_the_sparse():
     assert np.all(np.diff(kept) > 0) and 1000 <= len(kept) <= 2500
     assert np.isin(np.arange(20000, 20030), kept).all()  # every stray (one per cell)
     np.testing.assert_array_equal(kept, well_spread(x, 2000))  # fixed
+
+
+def test_a_face_finer_than_the_raster_leaves_the_surface_untrimmed():
+    # two clusters 1e6 apart (a hostile input): the surface spans both, the face is one
+    # cluster, far below one cell of the footprint's raster; no loops, not a crash
+    from test_fit import config
+
+    from psonurbs.fitting.pipeline import fit_points
+
+    def bumps(seed):
+        x, y = np.random.default_rng(seed).random((2, 60))
+        return np.column_stack([x, y, 0.75 * np.exp(-((9 * x - 2) ** 2 + (9 * y - 2) ** 2) / 4)
+                                + 0.5 * np.exp(-((9 * x - 7) ** 2) / 4)])
+
+    pts = np.vstack([bumps(4), bumps(5) + 1e6])
+    result = fit_points(pts, config(swarm={"particles": 4, "iterations": 3}, polish_iterations=5))
+    assert result.info["trim"]["trimmed"] is False and result.info["trim"]["loops"] == 0
+    assert np.all(np.isfinite(result.surface.control_points))

@@ -231,6 +231,8 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     gap = float(ndimage.distance_transform_edt(empty).max()) * cell if empty.any() else 0.0
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
+    if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
+        return None
     outer = int(np.argmax([signed_area(p) for p in polygons]))
     # a hole smaller than a disc of the alpha scale is a sampling gap (a sliver of wide
     # circumcircle in a random sample), not a gap in the data: the face covers it
