@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 TIME_LIMIT = 120  # seconds per case
+SIGNAL_AFTER = 3.0  # seconds before a batch case signals its run (once its workers exist)
 MEMORY_LIMIT = 4 << 30  # address space per case (the imports alone map about 1.2 GiB)
 QUICK = "swarm: {particles: 4, iterations: 3}\npolish_iterations: 5\n"  # a tiny swarm: the corpus is about inputs
 
@@ -322,7 +323,7 @@ def corpus() -> list[Case]:
                           files={"c.ply": GOOD, "quick.yaml": QUICK}))
     # the batch: a worker killed for real, a run terminated
     batch = {f"b{k}.ply": ply(franke(300, seed=k, noise=1e-3)) for k in range(4)}
-    slow = "swarm: {particles: 10, iterations: 30}\npolish_iterations: 20\n"
+    slow = "swarm: {particles: 40, iterations: 300}\npolish_iterations: 20\n"  # seconds per cloud, whatever the machine
     cases.append(Case("jobs2_worker_sigkill", ["{dir}", "-c", "{dir}/slow.yaml", "-o", "{dir}/out", "-q", "--jobs",
                                                 "2"], (4,), "batch", setup="kill_worker",
                       files={**batch, "slow.yaml": slow}))
@@ -388,14 +389,14 @@ def run_case(case: Case, directory: Path) -> Outcome:
             if pid:
                 break
             elapsed = time.perf_counter() - start
-            if case.setup in ("kill_worker", "terminate") and not signalled and elapsed > 10:
-                signalled = True  # the workers have started and are fitting
-                if case.setup == "terminate":
-                    process.send_signal(signal.SIGTERM)
-                else:
-                    workers = [w for w in children_of(process.pid)
-                               if b"spawn_main" in Path(f"/proc/{w}/cmdline").read_bytes()]
-                    if workers:
+            if case.setup in ("kill_worker", "terminate") and not signalled and elapsed > SIGNAL_AFTER:
+                workers = [w for w in children_of(process.pid)
+                           if b"spawn_main" in Path(f"/proc/{w}/cmdline").read_bytes()]
+                if workers:  # the workers have started and are fitting
+                    signalled = True
+                    if case.setup == "terminate":
+                        process.send_signal(signal.SIGTERM)
+                    else:
                         os.kill(workers[0], signal.SIGKILL)
             if elapsed > TIME_LIMIT:
                 process.kill()
