@@ -193,6 +193,7 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     good = np.flatnonzero(biweights(distances) > 0)  # gross outliers (weight 0) have no footprint
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
+    subsampled = len(drawn) < len(good)
     x = every[drawn]
     spacing = local_spacing(x)
     tri, kept = alpha_triangles(x, spacing)
@@ -205,7 +206,7 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     in_face = label == int(np.argmax(piece_area))
     face_points = np.unique(tri.simplices[in_face])
     others = np.setdiff1d(np.unique(tri.simplices[kept & ~in_face]), face_points)
-    if len(drawn) < len(good):  # a subsample's pieces, each point on the piece of its nearest drawn point
+    if subsampled:  # a subsample's pieces, each point on the piece of its nearest drawn point
         face_points, others = pieces_of_every_point(every, x, spacing, face_points, others)
     else:
         face_points, others = drawn[face_points], drawn[others]
@@ -219,7 +220,7 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
-    if len(drawn) < len(good):  # and the four cell centres around every point on the face
+    if subsampled:  # and the four cell centres around every point on the face
         at = np.floor((every[face_points] - [xs[0], ys[0]]) / cell).astype(int)
         for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1)):
             mask[at[:, 0] + di, at[:, 1] + dj] = True
