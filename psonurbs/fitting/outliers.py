@@ -37,7 +37,7 @@ support points, where junk faces the surface it floats over.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 import numpy as np
@@ -71,19 +71,19 @@ class NeighbourhoodFits:
     @staticmethod
     def placed(rows: np.ndarray, fits: "NeighbourhoodFits") -> "NeighbourhoodFits":
         """The fits of the points ``rows`` (a permutation of all N), in the points' order."""
-        out = {}
-        for name in ("residual", "spread", "radius", "weights"):
-            value = getattr(fits, name)
-            out[name] = np.empty_like(value)
-            out[name][rows] = value
-        return NeighbourhoodFits(**out)
+        return fits._scattered(rows, fits, np.empty_like)
 
     def replaced(self, rows: np.ndarray, other: "NeighbourhoodFits") -> "NeighbourhoodFits":
         """These fits with those of ``rows`` taken from ``other`` (fitted for those rows only)."""
+        return self._scattered(rows, other, np.copy)
+
+    def _scattered(self, rows: np.ndarray, other: "NeighbourhoodFits", start) -> "NeighbourhoodFits":
+        """Every field ``start``-ed from this one's (a copy, or an empty array like it), with
+        ``other``'s values at ``rows``."""
         out = {}
-        for name in ("residual", "spread", "radius", "weights"):
-            out[name] = getattr(self, name).copy()
-            out[name][rows] = getattr(other, name)
+        for field in fields(self):
+            out[field.name] = start(getattr(self, field.name))
+            out[field.name][rows] = getattr(other, field.name)
         return NeighbourhoodFits(**out)
 
 
