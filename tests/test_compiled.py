@@ -1,0 +1,30 @@
+"""The optional compiled kernels' switch (psonurbs.geometry.compiled)."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from psonurbs.geometry import compiled
+
+
+def flags(env_value):
+    env = dict(os.environ, PSONURBS_NO_JIT=env_value)
+    code = "from psonurbs.geometry import compiled; print(compiled.ENABLED)"
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def test_no_jit_forces_the_numpy_path():
+    assert flags("1") == "False"
+
+
+def test_a_kernel_computes_what_its_python_source_does():
+    def weighted_sum(x, w):
+        total = 0.0
+        for i in range(x.shape[0]):
+            total += x[i] * w[i]
+        return total
+
+    x, w = np.arange(5.0), np.array([1.0, -2.0, 0.5, 3.0, 0.25])
+    assert compiled.kernel(weighted_sum)(x, w) == weighted_sum(x, w) == 9.0
