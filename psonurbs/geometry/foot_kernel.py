@@ -21,7 +21,7 @@ import numpy as np
 from .compiled import kernel
 
 
-@kernel
+@kernel(inline=True)
 def knot_span(t, degree, x):
     """The span l with t[l] <= x < t[l + 1] (the last non-empty one for x = t[n]),
     x already in [t[degree], t[n]]: scipy's ``find_interval``."""
@@ -32,7 +32,7 @@ def knot_span(t, degree, x):
     return span - 1
 
 
-@kernel
+@kernel(inline=True)
 def deboor_values(t, degree, span, x, out, scratch):
     """out[0..degree] = N_{span-degree..span, degree}(x) (de Boor's recurrence, as scipy's
     ``_deBoor_D``). Knot indices are those of the full vector: the vector t[d:-d] of a
@@ -52,7 +52,7 @@ def deboor_values(t, degree, span, x, out, scratch):
             out[n] = w * (x - xa)
 
 
-@kernel
+@kernel(inline=True)
 def differentiate(t, degree, span, lower, out):
     """out[0..degree] = the derivative of the degree-``degree`` basis on its span from
     ``lower`` (the degree - 1 values, one order of derivative less):
@@ -67,7 +67,7 @@ def differentiate(t, degree, span, lower, out):
         out[c] = a * below - b * above
 
 
-@kernel
+@kernel(inline=True)
 def basis_derivatives(t, degree, span, x, orders, out, work, scratch):
     """out[d, 0..degree] = d-th derivative of the basis on the span, d < ``orders`` (<= 3).
 
@@ -87,7 +87,7 @@ def basis_derivatives(t, degree, span, x, orders, out, work, scratch):
             out[d, c] = work[d, c]
 
 
-@kernel
+@kernel(inline=True)
 def spline(bu, bv, du, dv, su, sv, degree_u, degree_v, nv, aw, w, out):
     """out[0:3] = sum_ab Bu[du, a] Bv[dv, b] (wP)_ab, out[3] = the same sum of the weights:
     the tensor basis row times the homogeneous net, in its sparse column order."""
@@ -134,24 +134,24 @@ def surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, orders, bu, bv, wor
         jet[5, k] = (h[5, k] - 2 * h[2, 3] * jet[2, k] - h[5, 3] * jet[0, k]) / den
 
 
-@kernel
+@kernel(inline=True)
 def wrap(x, closed):
     """keep_in_domain for one parameter: modulo 1 in a closed direction, clipped otherwise."""
     return np.mod(x, 1.0) if closed else min(max(x, 0.0), 1.0)
 
 
-@kernel
+@kernel(inline=True)
 def distance2(jet, point):
     d0, d1, d2 = jet[0, 0] - point[0], jet[0, 1] - point[1], jet[0, 2] - point[2]
     return (d0 * d0 + d1 * d1) + d2 * d2
 
 
-@kernel
+@kernel(inline=True)
 def dot(a, b):
     return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
 
 
-@kernel
+@kernel(inline=True)
 def newton_step(jet, point, u, v, closed_u, closed_v, residual, step):
     """step[0:2] = the bounded Newton step of ``foot_point_step`` for one point."""
     for k in range(3):
