@@ -194,10 +194,13 @@ def foot_points(tu, tv, degree_u, degree_v, nv, aw, w, closed_u, closed_v, point
     for i in range(points.shape[0]):
         point = points[i]
         u, v = wrap(uv[i, 0], closed_u), wrap(uv[i, 1], closed_v)
-        surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 1, bu, bv, work, scratch, homogeneous, jet)
+        # the first step's derivatives give the start's distance too (S is the same bits either way)
+        surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 3 if iterations > 0 else 1, bu, bv, work, scratch,
+                    homogeneous, jet)
         dist2 = distance2(jet, point)
-        for _ in range(iterations):
-            surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 3, bu, bv, work, scratch, homogeneous, jet)
+        for iteration in range(iterations):
+            if iteration > 0:
+                surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 3, bu, bv, work, scratch, homogeneous, jet)
             newton_step(jet, point, u, v, closed_u, closed_v, residual, step)
             moved = False
             for halving in range(halvings):
