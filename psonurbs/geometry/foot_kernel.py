@@ -88,35 +88,45 @@ def basis_derivatives(t, degree, span, x, orders, out, work, scratch):
 
 
 @kernel(inline=True)
-def spline(bu, bv, du, dv, su, sv, degree_u, degree_v, nv, aw, w, out):
-    """out[0:3] = sum_ab Bu[du, a] Bv[dv, b] (wP)_ab, out[3] = the same sum of the weights:
-    the tensor basis row times the homogeneous net, in its sparse column order."""
-    x, y, z, h = 0.0, 0.0, 0.0, 0.0  # sums in registers (out may alias the net for the compiler)
+def splines(bu, bv, count, su, sv, degree_u, degree_v, nv, aw, w, out):
+    """out[m, 0:3] = sum_ab Bu[du_m, a] Bv[dv_m, b] (wP)_ab and out[m, 3] the same sum of the
+    weights, for (du_m, dv_m) = (0,0) (count 1), also (1,0), (0,1), (2,0), (1,1), (0,2)
+    (count 6): the tensor basis rows times the homogeneous net, each sum in the sparse
+    matrix's column order, all in one pass over the net's entries."""
+    for m in range(count):
+        for k in range(4):
+            out[m, k] = 0.0
     for a in range(degree_u + 1):
         row = (su - degree_u + a) * nv + (sv - degree_v)
         for b in range(degree_v + 1):
-            coefficient = bu[du, a] * bv[dv, b]
-            x += coefficient * aw[row + b, 0]
-            y += coefficient * aw[row + b, 1]
-            z += coefficient * aw[row + b, 2]
-            h += coefficient * w[row + b]
-    out[0], out[1], out[2], out[3] = x, y, z, h
+            net = (aw[row + b, 0], aw[row + b, 1], aw[row + b, 2], w[row + b])
+            c0 = bu[0, a] * bv[0, b]
+            for k in range(4):
+                out[0, k] += c0 * net[k]
+            if count == 1:
+                continue
+            c1, c2, c3, c4, c5 = bu[1, a] * bv[0, b], bu[0, a] * bv[1, b], bu[2, a] * bv[0, b], \
+                bu[1, a] * bv[1, b], bu[0, a] * bv[2, b]
+            for k in range(4):
+                out[1, k] += c1 * net[k]
+                out[2, k] += c2 * net[k]
+                out[3, k] += c3 * net[k]
+                out[4, k] += c4 * net[k]
+                out[5, k] += c5 * net[k]
 
 
 @kernel
 def surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, orders, bu, bv, work, scratch, homogeneous, jet):
-    """jet[0] = S(u, v); with orders >= 2 also jet[1] = S_u, jet[2] = S_v; with orders = 3
-    jet[3..5] = S_uu, S_uv, S_vv (the quotient rule of :meth:`NurbsSurface.derivatives`)."""
+    """jet[0] = S(u, v) (orders 1); with orders 3 also jet[1..5] = S_u, S_v, S_uu, S_uv, S_vv
+    (the quotient rule of :meth:`NurbsSurface.derivatives`)."""
     u = min(max(u, tu[degree_u]), tu[tu.shape[0] - degree_u - 1])
     v = min(max(v, tv[degree_v]), tv[tv.shape[0] - degree_v - 1])
     span_u, span_v = knot_span(tu, degree_u, u), knot_span(tv, degree_v, v)
     basis_derivatives(tu, degree_u, span_u, u, orders, bu, work, scratch)
     basis_derivatives(tv, degree_v, span_v, v, orders, bv, work, scratch)
     # homogeneous[m] = (A, w) of derivative (du, dv): m = 0 (0,0), 1 (1,0), 2 (0,1), 3 (2,0), 4 (1,1), 5 (0,2)
-    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
-    count = 1 if orders == 1 else 3 if orders == 2 else 6
-    for m in range(count):
-        spline(bu, bv, pairs[m][0], pairs[m][1], span_u, span_v, degree_u, degree_v, nv, aw, w, homogeneous[m])
+    splines(bu, bv, 1 if orders == 1 else 6, span_u, span_v, degree_u, degree_v, nv, aw, w,
+            homogeneous)
     h = homogeneous
     den = h[0, 3]
     for k in range(3):
@@ -126,8 +136,6 @@ def surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, orders, bu, bv, wor
     for k in range(3):
         jet[1, k] = (h[1, k] - h[1, 3] * jet[0, k]) / den
         jet[2, k] = (h[2, k] - h[2, 3] * jet[0, k]) / den
-    if orders == 2:
-        return
     for k in range(3):
         jet[3, k] = (h[3, k] - 2 * h[1, 3] * jet[1, k] - h[3, 3] * jet[0, k]) / den
         jet[4, k] = (h[4, k] - h[1, 3] * jet[2, k] - h[2, 3] * jet[1, k] - h[4, 3] * jet[0, k]) / den
@@ -194,9 +202,12 @@ def foot_points(tu, tv, degree_u, degree_v, nv, aw, w, closed_u, closed_v, point
     for i in range(points.shape[0]):
         point = points[i]
         u, v = wrap(uv[i, 0], closed_u), wrap(uv[i, 1], closed_v)
-        # the first step's derivatives give the start's distance too (S is the same bits either way)
-        surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 3 if iterations > 0 else 1, bu, bv, work, scratch,
-                    homogeneous, jet)
+        # the first step's derivatives give the start's distance too (S is the same bits either way);
+        # orders are given as constants: numba compiles one evaluation for values, one for derivatives
+        if iterations > 0:
+            surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 3, bu, bv, work, scratch, homogeneous, jet)
+        else:
+            surface_jet(tu, tv, degree_u, degree_v, nv, aw, w, u, v, 1, bu, bv, work, scratch, homogeneous, jet)
         dist2 = distance2(jet, point)
         for iteration in range(iterations):
             if iteration > 0:
