@@ -7,7 +7,7 @@ squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the 
 loss's point weights when there are any (:mod:`psonurbs.fitting.robust`).
 
 The swarm's fitness evaluates all particles of an iteration together
-(:mod:`psonurbs.fitting.stacked_solve`); :meth:`KnotWeightSearch.error` is the same
+(:mod:`psonurbs.fitting.stacked_solve`: by numpy, or its compiled twin with numba); :meth:`KnotWeightSearch.error` is the same
 number for one particle through the single solver (scipy design matrices, dense
 Cholesky), used by the topology choice and the validation.
 """

@@ -15,6 +15,10 @@ The Gram matrix is a sum of m x m blocks, one per chunk of rows of one cell (a
 product over the chunk's slots, :class:`psonurbs.geometry.stacked_rows.StackedRows`).
 The systems are factored in a banded order (:mod:`psonurbs.fitting.banded`) and the
 leverages read the blocks of M^-1 at each cell's columns from its selected inverse.
+
+:func:`particle_errors` is the compiled twin (numba, :mod:`psonurbs.geometry.compiled`)
+of the same computation, one particle at a time in a loop instead of numpy's passes over
+padded (chunks, slots, m) arrays: about 3 x faster, the same numbers to rounding.
 """
 from __future__ import annotations
 
