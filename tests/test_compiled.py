@@ -28,3 +28,18 @@ def test_a_kernel_computes_what_its_python_source_does():
 
     x, w = np.arange(5.0), np.array([1.0, -2.0, 0.5, 3.0, 0.25])
     assert compiled.kernel(weighted_sum)(x, w) == weighted_sum(x, w) == 9.0
+
+
+def test_an_inline_helper_computes_the_same_inside_a_kernel():
+    @compiled.kernel(inline=True)
+    def squared_plus_one(x):
+        return x * x + 1.0
+
+    @compiled.kernel
+    def total(x):
+        out = 0.0
+        for i in range(x.shape[0]):
+            out += squared_plus_one(x[i])
+        return out
+
+    assert total(np.arange(4.0)) == 1.0 + 2.0 + 5.0 + 10.0 and squared_plus_one(3.0) == 10.0

@@ -24,9 +24,14 @@ except ImportError:  # the numpy reference path
 ENABLED = numba is not None
 
 
-def kernel(function):
+def kernel(function=None, *, inline: bool = False):
     """``function`` compiled by numba (no Python objects, cached), or itself without it:
-    call a kernel only where :data:`ENABLED`, or accept the Python loop's speed."""
+    call a kernel only where :data:`ENABLED`, or accept the Python loop's speed.
+
+    ``@kernel(inline=True)`` marks a small helper that is compiled into every kernel
+    calling it (numba's ``inline="always"``: no call in a per-point loop)."""
+    if function is None:
+        return lambda f: kernel(f, inline=inline)
     if numba is None:
         return function
-    return numba.njit(cache=True, nogil=True)(function)
+    return numba.njit(cache=True, nogil=True, inline="always" if inline else "never")(function)

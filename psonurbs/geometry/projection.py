@@ -10,18 +10,24 @@ r = S - x (Gauss-Newton's H without the r terms where the full H is not positive
 definite). A parameter on an open edge whose descent leads off the domain is held on
 the edge and the step taken in the other one alone (an active set), and a step is
 halved until it brings the point closer. Closed directions wrap.
+
+Two implementations of the same search: :func:`newton_foot_points` (numpy, every point's
+arrays at once: the reference) and its compiled twin in :mod:`.foot_kernel` (point by
+point, no derivative arrays; the same numbers), used where :data:`COMPILED`.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import compiled, foot_kernel
 from .chunks import chunks
 from .nurbs import NurbsSurface
 
 LINE_SEARCH_HALVINGS = 8
 PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
 FOOT_POINT_CHUNK = 1 << 15  # points searched together: some 30 MB of derivatives and trial arrays
+COMPILED = compiled.ENABLED  # the search's one switch: the compiled twin, or the numpy reference
 
 
 def keep_in_domain(uv: np.ndarray, closed: tuple[bool, bool]) -> np.ndarray:
@@ -57,10 +63,24 @@ def closest_parameters(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray
     start = None
     if uv is None:
         start = GridStart(surface, resolution or int(np.clip(32 * max(surface.shape), 128, 512)))
+    search = compiled_foot_points if COMPILED else newton_foot_points
     out_uv, out_dist = np.empty((len(points), 2)), np.empty(len(points))
     for part in chunks(len(points), FOOT_POINT_CHUNK):
         first = start(points[part]) if start is not None else uv[part]
-        out_uv[part], out_dist[part] = newton_foot_points(surface, points[part], first, closed, iterations)
+        out_uv[part], out_dist[part] = search(surface, points[part], first, closed, iterations)
+    return out_uv, out_dist
+
+
+def compiled_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, closed: tuple[bool, bool],
+                         iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`newton_foot_points` by the compiled kernel :func:`.foot_kernel.foot_points`."""
+    out_uv, out_dist = np.empty((len(points), 2)), np.empty(len(points))
+    weighted_net = (surface.control_points * surface.weights[..., None]).reshape(-1, 3)
+    foot_kernel.foot_points(surface.knots_u, surface.knots_v, int(surface.degree_u), int(surface.degree_v),
+                            int(surface.shape[1]), weighted_net, np.ascontiguousarray(surface.weights.reshape(-1)),
+                            bool(closed[0]), bool(closed[1]), np.ascontiguousarray(points, float),
+                            np.ascontiguousarray(uv, float), int(iterations), LINE_SEARCH_HALVINGS,
+                            PARAMETER_TOLERANCE, out_uv, out_dist)
     return out_uv, out_dist
 
 
