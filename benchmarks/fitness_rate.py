@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Swarm fitness evaluations per second: one particle at a time against the batched fitness.
+"""Swarm fitness evaluations per second: one particle at a time, the batched numpy fitness and
+its compiled twin.
 
     python benchmarks/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20] [--stages]
 
@@ -8,18 +9,22 @@ fitness on a Franke surface sampled at ``--points`` scattered points (noise 0.2%
 diagonal), takes ``--particles`` particles of the initial swarm (the classical fit,
 then particles spread towards random knots, weights and smoothing), and times
 
-    before  ``[search.error(x) for x in swarm]``: one particle at a time, scipy design
-            matrices and a dense solve per particle (the fitness of the swarm until now)
-    after   ``search.fitness(swarm)``: all particles together (stacked_rows + the banded
-            stacked solve)
+    single    ``[search.error(x) for x in swarm]``: one particle at a time, scipy design
+              matrices and a dense solve per particle (the fitness of issue #12's start)
+    numpy     ``search.numpy_fitness(swarm)``: all particles together (stacked_rows + the
+              banded stacked solve), the reference path
+    compiled  ``search.compiled_fitness(swarm)``: the numba kernel, particle by particle
+              (only with numba, the ``fast`` extra)
 
-in interleaved rounds (before, after, before, ...), one BLAS thread and glibc keeping freed
-memory as in a fit (:mod:`psonurbs.run.heap`). The
-best round of each is reported, as wall time and as process CPU time (on a busy machine
-the CPU time is the steadier figure), with the largest relative difference between the
-two fitness values (they compute the same leave-one-out RMSE).
+in interleaved rounds (single, numpy, compiled, single, ...), one BLAS thread and glibc
+keeping freed memory as in a fit (:mod:`psonurbs.run.heap`). The best round of each is
+reported, as wall time and as process CPU time (on a busy machine the CPU time is the
+steadier figure), with the largest relative difference of the numpy and the compiled
+fitness from the single one (they compute the same leave-one-out RMSE). The compiled
+kernels' first call (compiling them, or loading numba's on-disk cache) is timed apart,
+before the rounds; ``NUMBA_CACHE_DIR=$(mktemp -d)`` makes it a fresh compile.
 
-With ``--stages`` a second table splits the batched fitness into its stages, each timed
+With ``--stages`` a second table splits the batched numpy fitness into its stages, each timed
 on its own over the swarm's groups of particles (as the fitness groups them), after a
 write of 64 MB that clears the caches as the previous stage does in a fit: the rows
 (``stacked_rows``), the normal matrices, the banded factorisation, the solve and
@@ -40,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from psonurbs.fitting.banded import StackedBandedCholesky  # noqa: E402
 from psonurbs.fitting.hybrid import KnotWeightSearch  # noqa: E402
 from psonurbs.fitting.solve import RegularisedLeastSquares  # noqa: E402
+from psonurbs.geometry import compiled  # noqa: E402
 from psonurbs.geometry.net import NetLayout  # noqa: E402
 from psonurbs.run.heap import keep_freed_memory  # noqa: E402
 
@@ -61,11 +67,13 @@ def search_for(net: int, n_points: int, rng: np.random.Generator) -> KnotWeightS
 
 def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tuple[dict, dict]:
     """Best (wall, cpu) seconds over interleaved rounds of each way, and the values."""
-    runs = {"before": lambda: [search.error(x) for x in swarm], "after": lambda: search.fitness(swarm)}
+    runs = {"single": lambda: [search.error(x) for x in swarm], "numpy": lambda: search.numpy_fitness(swarm)}
+    if compiled.ENABLED:
+        runs["compiled"] = lambda: search.compiled_fitness(swarm)
     best = {name: [np.inf, np.inf] for name in runs}
     values = {}
     with threadpool_limits(limits=1):
-        runs["after"]()  # warm-up: what is built once per search
+        runs["numpy"]()  # warm-up: what is built once per search
         for _ in range(rounds):
             for name, run in runs.items():
                 wall, cpu = time.perf_counter(), time.process_time()
@@ -73,6 +81,14 @@ def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tup
                 wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
                 best[name] = [min(best[name][0], wall), min(best[name][1], cpu)]
     return best, values
+
+
+def first_call(search: KnotWeightSearch, swarm: np.ndarray) -> float:
+    """Wall seconds of the compiled fitness's first call: compiling the kernels (or
+    loading them from numba's cache) and one evaluation."""
+    wall = time.perf_counter()
+    search.compiled_fitness(swarm[:1])
+    return time.perf_counter() - wall
 
 
 def stage_costs(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> dict[str, float]:
@@ -92,7 +108,7 @@ def stage_costs(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> dic
         "fit": lambda: [stacked.fit(r, search.points, s) for r, s in zip(rows, smoothing)],
         "selected inverse": lambda: [f.selected_inverse() for f in factors],
         "leverages": lambda: [stacked.leverages(r, f) for r, f in zip(rows, factors)],
-        "whole fitness": lambda: search.fitness(swarm),
+        "whole fitness": lambda: search.numpy_fitness(swarm),
     }
     evict = np.zeros(2 ** 23)
     best = dict.fromkeys(runs, np.inf)
@@ -120,21 +136,32 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     keep_freed_memory()  # as a fitting process does (psonurbs.run.heap)
     print(f"{args.points} points, {args.particles} particles, best of {args.rounds} interleaved rounds, 1 thread")
-    print("| net | before ms/eval (wall, cpu) | after ms/eval (wall, cpu) | before evals/s | after evals/s "
-          "| speed-up (wall, cpu) | max rel. diff |")
-    print("|---|---|---|---|---|---|---|")
+    ways = ["single", "numpy"] + (["compiled"] if compiled.ENABLED else [])
+    if compiled.ENABLED:
+        rng = np.random.default_rng(args.nets[0])
+        search = search_for(args.nets[0], args.points, rng)
+        print(f"compiled kernels' first call (compile or cache load): "
+              f"{first_call(search, search.initial_swarm(2, rng)):.2f} s wall, not in the rates below")
+    else:
+        print("numba is not there (or PSONURBS_NO_JIT is set): no compiled column")
+    print("| net | " + " | ".join(f"{w} ms/eval (wall, cpu)" for w in ways) + " | "
+          + " | ".join(f"{w} evals/s" for w in ways) + " | compiled vs numpy, vs single (cpu) "
+          "| max rel. diff from single (numpy, compiled) |")
+    print("|---" * (2 * len(ways) + 3) + "|")
     for net in args.nets:
         rng = np.random.default_rng(net)
         search = search_for(net, args.points, rng)
         swarm = search.initial_swarm(args.particles, rng)
         best, values = best_rounds(search, swarm, args.rounds)
         per_eval = {k: [1e3 * t / args.particles for t in v] for k, v in best.items()}
-        diff = float(np.max(np.abs(values["after"] / values["before"] - 1.0)))
-        b, a = per_eval["before"], per_eval["after"]
-        print(f"| {net} x {net} | {b[0]:.3f}, {b[1]:.3f} | {a[0]:.3f}, {a[1]:.3f} | {1e3 / b[0]:.0f} | "
-              f"{1e3 / a[0]:.0f} | {b[0] / a[0]:.1f}x, {b[1] / a[1]:.1f}x | {diff:.1e} |", flush=True)
+        diff = {k: float(np.max(np.abs(values[k] / values["single"] - 1.0))) for k in ways[1:]}
+        last = per_eval[ways[-1]][1]
+        print(f"| {net} x {net} | " + " | ".join(f"{per_eval[w][0]:.3f}, {per_eval[w][1]:.3f}" for w in ways)
+              + " | " + " | ".join(f"{1e3 / per_eval[w][1]:.0f}" for w in ways)
+              + f" | {per_eval['numpy'][1] / last:.1f}x, {per_eval['single'][1] / last:.1f}x | "
+              + ", ".join(f"{d:.1e}" for d in diff.values()) + " |", flush=True)
     if args.stages:
-        print("\nstages of the batched fitness, cpu ms per evaluation (each from cold caches)")
+        print("\nstages of the batched numpy fitness, cpu ms per evaluation (each from cold caches)")
         for k, net in enumerate(args.nets):
             rng = np.random.default_rng(net)
             search = search_for(net, args.points, rng)

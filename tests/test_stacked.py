@@ -66,25 +66,26 @@ def test_batched_fitness_equals_the_single_particle_error(name, cross_validation
     search = search_for(name, cross_validation)
     swarm = search.initial_swarm(10, np.random.default_rng(2))
     single = np.array([search.error(x) for x in swarm])
-    np.testing.assert_allclose(search.fitness(swarm), single, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(search.numpy_fitness(swarm), single, rtol=1e-12, atol=0)
 
 
 def test_batched_fitness_is_deterministic_and_independent_of_the_grouping():
     search = search_for("open", True)
     swarm = search.initial_swarm(12, np.random.default_rng(3))
-    whole = search.fitness(swarm)
-    assert whole.tobytes() == search.fitness(swarm).tobytes()  # the same call, the same bytes
+    whole = search.numpy_fitness(swarm)
+    assert whole.tobytes() == search.numpy_fitness(swarm).tobytes()  # the same call, the same bytes
     # each particle's numbers are its own: another grouping changes at most the last bit
     # (numpy's vector reductions depend on the alignment of the data in memory)
-    parts = np.concatenate([search.fitness(swarm[:5]), search.fitness(swarm[5:])])
+    parts = np.concatenate([search.numpy_fitness(swarm[:5]), search.numpy_fitness(swarm[5:])])
     np.testing.assert_allclose(parts, whole, rtol=1e-15, atol=0)
     assert np.all(np.diff(whole) != 0)  # the particles really differ
 
 
 def test_a_particle_whose_solve_fails_scores_inf_and_the_others_are_kept(monkeypatch):
+    # the numpy path: a group whose solve fails is retried particle by particle
     search = search_for("open", True)
     swarm = search.initial_swarm(5, np.random.default_rng(4))
-    expected = search.fitness(swarm)
+    expected = search.numpy_fitness(swarm)
     errors = search.stacked.errors
 
     def failing(rows, data, smoothing, *args, **kwargs):  # particle 2 has a singular system
@@ -93,7 +94,7 @@ def test_a_particle_whose_solve_fails_scores_inf_and_the_others_are_kept(monkeyp
         return errors(rows, data, smoothing, *args, **kwargs)
 
     monkeypatch.setattr(search.stacked, "errors", failing)
-    got = search.fitness(swarm)
+    got = search.numpy_fitness(swarm)
     assert got[2] == np.inf
     np.testing.assert_allclose(np.delete(got, 2), np.delete(expected, 2), rtol=1e-15, atol=0)
 
@@ -129,7 +130,7 @@ def test_point_weights_give_the_weighted_solve(name, cross_validation):
     # unit weights are the unweighted fitness
     ones = search.stacked.errors(rows, search.points, 10.0 ** swarm[:, -1], cross_validation,
                                  np.ones(len(search.points)))
-    np.testing.assert_allclose(ones, search.fitness(swarm), rtol=1e-13)
+    np.testing.assert_allclose(ones, search.numpy_fitness(swarm), rtol=1e-13)
 
 
 def banded_spd(n: int, width: int, count: int, seed: int) -> np.ndarray:

@@ -28,6 +28,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from psonurbs.geometry.compiled import kernel
+from psonurbs.geometry.stacked_rows import LANES
+
 BLOCK = 16  # columns per step of the factorisation
 
 
@@ -113,3 +116,81 @@ class StackedBandedCholesky:
                 diagonal -= g.transpose(0, 2, 1) @ below
             s[:, j0:j1, j0:j1] = diagonal
         return s
+
+
+# Compiled twins for one system in upper band storage: ``band[i, d] = M[i, i + d]``,
+# (n, w + 1), entries past the end unused. The factor is M = U^T U (Cholesky, U upper,
+# ``band[i, d] = U[i, i + d]`` after the factorisation), each pivot checked positive.
+
+@kernel
+def band_cholesky(band: np.ndarray) -> bool:
+    """Factor ``band`` in place (right-looking); False if M is not positive definite.
+    (Inner loops run over 1-d rows from 0, which numba vectorises.)"""
+    n, w = band.shape[0], band.shape[1] - 1
+    for i in range(n):
+        pivot = band[i, 0]
+        if not pivot > 0.0:  # also NaN
+            return False
+        pivot = np.sqrt(pivot)
+        band[i, 0] = pivot
+        reach = min(w, n - 1 - i)
+        source = band[i]
+        for t in range(1, reach + 1):
+            source[t] /= pivot
+        for t in range(1, reach + 1):
+            a = source[t]
+            target = band[i + t]
+            for j in range(reach + 1 - t):
+                target[j] -= a * source[j + t]
+    return True
+
+
+@kernel
+def band_solve(band: np.ndarray, rhs: np.ndarray) -> None:
+    """``rhs`` (n, k) <- M^-1 rhs from the factor: U^T y = rhs, then U x = y."""
+    n, w, k = band.shape[0], band.shape[1] - 1, rhs.shape[1]
+    for i in range(n):
+        reach = min(w, n - 1 - i)
+        for c in range(k):
+            y = rhs[i, c] / band[i, 0]
+            rhs[i, c] = y
+            for t in range(1, reach + 1):
+                rhs[i + t, c] -= band[i, t] * y
+    for i in range(n - 1, -1, -1):
+        reach = min(w, n - 1 - i)
+        for c in range(k):
+            total = rhs[i, c]
+            for t in range(1, reach + 1):
+                total -= band[i, t] * rhs[i + t, c]
+            rhs[i, c] = total / band[i, 0]
+
+
+@kernel
+def band_selected_inverse(band: np.ndarray, inverse: np.ndarray) -> None:
+    """The entries of Z = M^-1 inside the band from the factor, both triangles:
+    ``inverse[i, w + d] = Z[i, i + d]`` for |d| <= w, (n, 2w + 1 + LANES) zeroed before
+    the first use (the columns past 2w are scratch). Last row first (Takahashi):
+    U Z = U^-T is lower triangular with diagonal 1 / U_ii, so for j >= i
+    ``Z_ij = (delta_ij / U_ii - sum_{k > i} U_ik Z_kj) / U_ii``, the Z_kj (k, j in
+    i + 1 .. i + w) from the rows already done. Row i's products ``sum_k U_ik Z_kj`` run
+    along the rows of Z (the storage holds both triangles for that), one pass per k,
+    over a whole number of LANES (the entries past the band are discarded)."""
+    n, w = band.shape[0], band.shape[1] - 1
+    work = np.empty(w + LANES)
+    for i in range(n - 1, -1, -1):
+        reach = min(w, n - 1 - i)
+        padded = -(-reach // LANES) * LANES
+        pivot = band[i, 0]
+        work[:padded] = 0.0
+        for k in range(1, reach + 1):  # Z[i, i + 1 ..] = -(U[i, i + 1 ..] @ Z[i + 1 .., i + 1 ..]) / U_ii
+            a = band[i, k] / pivot
+            source = inverse[i + k, w + 1 - k:w + 1 - k + padded]
+            for j in range(padded):
+                work[j] -= a * source[j]
+        target = inverse[i]
+        diagonal = 1.0 / pivot
+        for t in range(1, reach + 1):
+            target[w + t] = work[t - 1]
+            diagonal -= band[i, t] * work[t - 1]
+            inverse[i + t, w - t] = work[t - 1]
+        target[w] = diagonal / pivot

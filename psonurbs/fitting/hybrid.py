@@ -7,7 +7,7 @@ squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the 
 loss's point weights when there are any (:mod:`psonurbs.fitting.robust`).
 
 The swarm's fitness evaluates all particles of an iteration together
-(:mod:`psonurbs.fitting.stacked_solve`); :meth:`KnotWeightSearch.error` is the same
+(:mod:`psonurbs.fitting.stacked_solve`: by numpy, or its compiled twin with numba); :meth:`KnotWeightSearch.error` is the same
 number for one particle through the single solver (scipy design matrices, dense
 Cholesky), used by the topology choice and the validation.
 """
@@ -17,6 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
+from psonurbs.geometry import compiled
 from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.stacked_rows import CellLayout, StackedRows, stacked_rows
@@ -106,18 +107,32 @@ class KnotWeightSearch:
 
     def fitness(self, positions: np.ndarray) -> np.ndarray:
         """The error of every particle (P,), all evaluated together; inf for a particle
-        whose normal matrix is not numerically positive definite."""
+        whose normal matrix is not numerically positive definite. Compiled where numba is
+        there (:mod:`psonurbs.geometry.compiled`), else numpy: the same numbers."""
+        return self.compiled_fitness(positions) if compiled.ENABLED else self.numpy_fitness(positions)
+
+    def compiled_fitness(self, positions: np.ndarray) -> np.ndarray:
+        """:meth:`fitness` by the compiled kernel, particle by particle."""
+        positions = np.atleast_2d(positions)
+        cu, cv = self.counts
+        return self.stacked.compiled_errors(self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
+                                            positions[:, cu:cu + cv], self.points, 10.0 ** positions[:, -1],
+                                            self.cross_validation, self.point_weights)
+
+    def numpy_fitness(self, positions: np.ndarray) -> np.ndarray:
+        """:meth:`fitness` by numpy (the reference), the particles in groups of stacked rows."""
         positions = np.atleast_2d(positions)
         group = self.group_size
         if len(positions) > group:
-            return np.concatenate([self.fitness(positions[k:k + group]) for k in range(0, len(positions), group)])
+            return np.concatenate([self.numpy_fitness(positions[k:k + group])
+                                   for k in range(0, len(positions), group)])
         try:
             return self.stacked.errors(self.rows(positions), self.points, 10.0 ** positions[:, -1],
                                        self.cross_validation, self.point_weights)
         except np.linalg.LinAlgError:
             if len(positions) == 1:
                 return np.array([np.inf])
-            return np.concatenate([self.fitness(x) for x in positions])
+            return np.concatenate([self.numpy_fitness(x) for x in positions])
 
     def error(self, x: np.ndarray) -> float:
         inner_u, inner_v, weights, smoothing = self.split(x)

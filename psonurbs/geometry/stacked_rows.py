@@ -25,6 +25,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
+from .compiled import kernel
 from .net import NetLayout
 
 
@@ -202,3 +203,98 @@ def stacked_rows(cells: CellLayout, uv: np.ndarray, weights: np.ndarray,
     tensor /= np.where(filled, tensor.sum(axis=0), 1.0)
     values = np.ascontiguousarray(tensor.transpose(2, 1, 0))  # (T, slots, m) for the products per chunk
     return StackedRows(cells, values, chunk_block, slot_of.reshape(n_particles, n_points))
+
+
+# Compiled twins (numba, :mod:`psonurbs.geometry.compiled`) for one particle: the cells
+# of the points first, then the rows cell by cell, the recurrence running over a cell's
+# points (one span, the same knots) as numpy runs it over the columns of a chunk.
+
+LANES = 8  # compiled inner loops run over multiples of this (a vector's doubles): no scalar tails
+
+
+@kernel
+def span_of(x: float, knots: np.ndarray, degree: int) -> int:
+    """The span of x (:func:`domain_spans`) in the full knot vector ``knots`` (K,)."""
+    n = knots.shape[0] - degree - 1
+    x = min(max(x, knots[degree]), knots[n])
+    span = degree
+    for k in range(degree + 1, n):
+        if x >= knots[k]:
+            span += 1
+    return span
+
+
+@kernel
+def particle_cells(uv: np.ndarray, knots_u: np.ndarray, knots_v: np.ndarray, degrees: np.ndarray, cells_v: int,
+                   cell_of: np.ndarray) -> None:
+    """The cell ``a * cells_v + b`` of each point ``uv[i]`` (a, b its spans less the
+    degrees) in ``cell_of[i]``, for one particle's full knot vectors."""
+    p, q = degrees[0], degrees[1]
+    for i in range(uv.shape[0]):
+        cell_of[i] = (span_of(uv[i, 0], knots_u, p) - p) * cells_v + span_of(uv[i, 1], knots_v, q) - q
+
+
+@kernel
+def cell_basis(x: np.ndarray, knots: np.ndarray, span: int, degree: int, out: np.ndarray) -> None:
+    """The compiled twin of :func:`local_basis`: the degree + 1 non-zero B-spline values
+    ``out[:, s]`` at the parameters ``x[s]`` (S,) of one span, the same recurrence in
+    the same order, S a multiple of LANES (the padding is discarded)."""
+    n = knots.shape[0] - degree - 1
+    for s in range(x.shape[0]):
+        x[s] = min(max(x[s], knots[degree]), knots[n])
+    first = out[0]
+    for s in range(x.shape[0]):
+        first[s] = 1.0
+    for j in range(1, degree + 1):
+        saved = out[j]
+        for s in range(x.shape[0]):
+            saved[s] = 0.0
+        for r in range(j):
+            gap = knots[span + 1 + r] - knots[span + 1 + r - j]  # d_r
+            inverse_gap = 1.0 / gap if gap != 0.0 else np.inf  # (as numpy divides)
+            right, left = knots[span + 1 + r], knots[span + r + 1 - j]
+            values = out[r]
+            for s in range(x.shape[0]):
+                temp = values[s] * inverse_gap  # N_r / d_r
+                values[s] = (right - x[s]) * temp + saved[s]  # right_{r+1} N_r / d_r + ...
+                saved[s] = (x[s] - left) * temp  # left_{j-r} N_r / d_r
+
+
+@kernel
+def particle_rows(uv: np.ndarray, knots_u: np.ndarray, knots_v: np.ndarray, degrees: np.ndarray, cells_v: int,
+                  weights: np.ndarray, free_columns: np.ndarray, first: np.ndarray, order: np.ndarray,
+                  rows: np.ndarray) -> None:
+    """The compiled twin of :func:`stacked_rows` for one particle: ``rows[s, :m]`` the
+    rational row of the point ``order[s]``, where the points of cell c are at
+    ``first[c]:first[c + 1]`` (:func:`particle_cells`, then a sort), for the full knot
+    vectors, free ``weights`` and ``free_columns`` (cells, m) = ``CellLayout.columns``
+    (entry a (q + 1) + b: the a-th basis function along u times the b-th along v)."""
+    p, q = degrees[0], degrees[1]
+    most = 0
+    for c in range(first.shape[0] - 1):
+        most = max(most, first[c + 1] - first[c])
+    most = -(-most // LANES) * LANES
+    x_u, x_v = np.empty(most), np.empty(most)
+    along_u, along_v = np.empty((p + 1, most)), np.empty((q + 1, most))
+    for c in range(first.shape[0] - 1):
+        start, count = first[c], first[c + 1] - first[c]
+        if count == 0:
+            continue
+        padded = -(-count // LANES) * LANES
+        for s in range(padded):
+            i = order[start + min(s, count - 1)]
+            x_u[s], x_v[s] = uv[i, 0], uv[i, 1]
+        cell_basis(x_u[:padded], knots_u, c // cells_v + p, p, along_u[:, :padded])
+        cell_basis(x_v[:padded], knots_v, c % cells_v + q, q, along_v[:, :padded])
+        columns = free_columns[c]
+        for s in range(count):
+            row, total = rows[start + s], 0.0
+            for a in range(p + 1):
+                for b in range(q + 1):
+                    e = a * (q + 1) + b
+                    value = along_u[a, s] * along_v[b, s] * weights[columns[e]]
+                    row[e] = value
+                    total += value
+            scale = 1.0 / total if total != 0.0 else np.nan  # (numpy's 0 / 0; one division, not m)
+            for e in range((p + 1) * (q + 1)):
+                row[e] *= scale
