@@ -2,7 +2,7 @@
 """Clouds outside the public benchmark: localised features where knot placement decides
 the fit, and smooth shapes where the swarm should change nothing for the worse.
 
-    python benchmarks/feature_clouds.py [--out DIR] [--only NAME ...] [--variants classical swarm]
+    python benchmarks/feature_clouds.py [--out DIR] [--only NAME ...] [--variants classical swarm] [--scorer SCORE_PY]
 
 Each cloud has a known surface and is written like a public case (PLY, YAML config,
 ground-truth mesh) with ``benchmarks/cases.py``; then it is fitted with ``psonurbs fit``
@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 from cases import TAU, Case, denser_towards_u1, equal_area_sphere, scattered, sphere, write
-from run_cases import COLUMNS, cell, fit_and_score
+from run_cases import COLUMNS, cell, fit_and_score, outside_score
+from score import score
 
 
 def height(z):
@@ -69,7 +70,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
     ap.add_argument("--only", nargs="*")
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"])
+    ap.add_argument("--scorer", type=Path, metavar="SCORE_PY",
+                    help="score with this script instead of benchmarks/score.py (as run_cases.py --scorer)")
     args = ap.parse_args(argv)
+    scorer = score if args.scorer is None else outside_score(args.scorer)
     cases = feature_cases()
     names = args.only or list(cases)
     root = args.out or Path(tempfile.mkdtemp(prefix="psonurbs-features-"))
@@ -82,7 +86,7 @@ def main(argv=None) -> int:
     for name in names:
         write(cases[name], cases_dir)
         for variant in args.variants:
-            r = fit_and_score(name, variant, cases_dir, root / "results")
+            r = fit_and_score(name, variant, cases_dir, root / "results", scorer=scorer)
             if "error" in r:
                 print(f"| {name} | {variant} | failed: {r['error']} |" + " |" * (len(header) - 3), flush=True)
                 continue
