@@ -44,6 +44,7 @@ from psonurbs.fitting.parametrise import parametrise_open, unit_square
 from psonurbs.fitting.polish import polish
 from psonurbs.fitting.solve import RegularisedLeastSquares
 from psonurbs.fitting.topology import layout_for
+from psonurbs.geometry.net import NetShape
 
 
 def section(n, degrees, noise=0.0, graded=False, seed=0):
@@ -222,7 +223,7 @@ def fit() -> None:
                 begin = time.perf_counter()
                 uv = coarse_to_fine(layout, pts, uv0, config.smoothing)[0] if ladder else uv0
                 solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing)
-                _, surface, uv, _ = polish(layout, solver, pts, uv, np.ones(layout.n_free), None, None, 100)
+                _, surface, uv, _ = polish(layout, solver, pts, uv, NetShape(np.ones(layout.n_free)), 100)
                 seconds = time.perf_counter() - begin
                 rmse = float(np.sqrt(np.mean(np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - pts) ** 2, axis=1))))
                 noise = f"{rmse / spec.noise:.3f}" if spec.noise else "-"

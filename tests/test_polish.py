@@ -7,7 +7,7 @@ import numpy as np
 from psonurbs.fitting.polish import AndersonMixing
 from psonurbs.fitting.refine import refine_jointly
 from psonurbs.fitting.solve import RegularisedLeastSquares
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 
 
 def test_anderson_mixing_solves_a_slow_linear_iteration_much_faster():
@@ -68,9 +68,9 @@ def test_joint_refinement_with_an_integer_weight_is_the_point_given_twice():
     w[[5, 17, 60]] = 2.0
     twice = np.r_[np.arange(120), [5, 17, 60]]
     bounds = np.log([0.2, 5.0])
-    weighted = refine_jointly(layout, solver, pts, uv, control, ones, None, None, bounds, point_weights=w)
-    repeated = refine_jointly(layout, solver, pts[twice], uv[twice], control, ones, None, None, bounds)
-    np.testing.assert_allclose(weighted[0], repeated[0], rtol=1e-7, atol=1e-9)  # control points
-    np.testing.assert_allclose(weighted[1], repeated[1], rtol=1e-7)  # weights
-    np.testing.assert_allclose(weighted[2], repeated[2][:120], atol=1e-9)  # parameters
-    assert weighted[3] == repeated[3]
+    weighted = refine_jointly(layout, solver, pts, uv, control, NetShape(ones), bounds, point_weights=w)
+    repeated = refine_jointly(layout, solver, pts[twice], uv[twice], control, NetShape(ones), bounds)
+    np.testing.assert_allclose(weighted.control, repeated.control, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(weighted.shape.weights, repeated.shape.weights, rtol=1e-7)
+    np.testing.assert_allclose(weighted.uv, repeated.uv[:120], atol=1e-9)
+    assert weighted.rounds == repeated.rounds

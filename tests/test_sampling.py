@@ -41,9 +41,9 @@ def test_free_state_gives_back_the_weights_and_knots_of_a_surface(layout):
     inner = [np.sort(rng.uniform(0.1, 0.9, c)) for c in layout.inner_counts]
     surface = layout.surface(rng.normal(size=(layout.n_free, 3)), weights, *inner)
     got = sampling.free_state(layout, surface)
-    np.testing.assert_array_equal(got[0], weights)
-    np.testing.assert_array_equal(got[1], inner[0])
-    np.testing.assert_array_equal(got[2], inner[1])
+    np.testing.assert_array_equal(got.weights, weights)
+    np.testing.assert_array_equal(got.inner_u, inner[0])
+    np.testing.assert_array_equal(got.inner_v, inner[1])
 
 
 def test_a_big_cloud_is_fitted_as_well_as_every_point_and_its_junk_counted(monkeypatch):

@@ -36,8 +36,7 @@ def search_for(name: str, cross_validation: bool, n_points: int = 900, seed: int
 
 
 def dense_rows(search: KnotWeightSearch, x: np.ndarray) -> np.ndarray:
-    inner_u, inner_v, weights, _ = search.split(x)
-    return search.layout.rows(search.uv, weights, inner_u, inner_v).toarray()
+    return search.layout.rows(search.uv, *search.split(x).shape).toarray()
 
 
 @pytest.mark.parametrize("name", list(LAYOUTS))
@@ -103,7 +102,7 @@ def weighted_reference(search: KnotWeightSearch, x: np.ndarray, w: np.ndarray, c
     """The weighted solve by dense numpy: M = R^T W R + regulariser(tr R^T W R), leave-one-out
     residual e_i / (1 - w_i h_i), weighted RMSE."""
     r = dense_rows(search, x)
-    solver = search.solver.with_smoothing(search.split(x)[3])
+    solver = search.solver.with_smoothing(search.split(x).smoothing)
     gram = r.T @ (w[:, None] * r)
     m = solver.normal_matrix(gram)
     control = np.linalg.solve(m, r.T @ (w[:, None] * search.points))
@@ -196,7 +195,7 @@ def test_band_order_puts_a_periodic_direction_in_the_band():
 def test_normal_matrices_match_the_single_solver(name):
     search = search_for(name, True, n_points=300)
     x = search.initial_swarm(3, np.random.default_rng(8))[2]
-    inner_u, inner_v, weights, smoothing = search.split(x)
+    (weights, inner_u, inner_v), smoothing = search.split(x)
     rows = stacked_rows(search.stacked.cells, search.uv, weights[None], inner_u[None], inner_v[None])
     stacked = search.stacked.normal_matrices(rows, None, np.array([smoothing]))[0]
     single = search.solver.with_smoothing(smoothing).normal_matrix(

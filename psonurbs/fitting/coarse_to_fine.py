@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from psonurbs.geometry.basis import uniform_inner_knots
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 
 from .polish import polish
 from .solve import RegularisedLeastSquares
@@ -74,8 +74,8 @@ def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smooth
     for level in ladder(layout):
         net = level.layout(layout)
         solver = RegularisedLeastSquares(net.smoothness_operator(), smoothing)
-        _, surface, uv, steps = polish(net, solver, points, uv, np.ones(net.n_free), level.inner_u, level.inner_v,
-                                       rounds)
+        shape = NetShape(np.ones(net.n_free), level.inner_u, level.inner_v)
+        _, surface, uv, steps = polish(net, solver, points, uv, shape, rounds)
         rmse = float(np.sqrt(np.mean(np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1))))
         report.append({"net": list(net.size), "rounds": int(steps), "rmse": rmse})
     return uv, report

@@ -14,12 +14,13 @@ Cholesky), used by the topology choice and the validation.
 from __future__ import annotations
 
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
 from psonurbs.geometry import compiled
 from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.stacked_rows import CellLayout, StackedRows, stacked_rows
 
 from .pso import Polytope
@@ -28,6 +29,13 @@ from .stacked_solve import StackedLeastSquares
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
 GROUP_BYTES = 2 ** 21  # particles are evaluated in groups whose rows take about this much (cache)
+
+
+class Decoded(NamedTuple):
+    """What a particle stands for: the net's shape (weights, inner knots) and the smoothing."""
+
+    shape: NetShape
+    smoothing: float
 
 
 class KnotWeightSearch:
@@ -55,10 +63,10 @@ class KnotWeightSearch:
     def dimension(self) -> int:
         return self.counts[0] + self.counts[1] + self.layout.n_free + 1
 
-    def split(self, x: np.ndarray):
-        """(inner knots u, inner knots v, weights, smoothing) of a particle."""
+    def split(self, x: np.ndarray) -> Decoded:
+        """The net's shape (weights, inner knots u and v) and the smoothing of a particle (D,)."""
         cu, cv = self.counts
-        return x[:cu], x[cu:cu + cv], np.exp(x[cu + cv:-1]), 10.0 ** x[-1]
+        return Decoded(NetShape(np.exp(x[cu + cv:-1]), x[:cu], x[cu:cu + cv]), 10.0 ** x[-1])
 
     def feasible(self) -> Polytope:
         cu, cv = self.counts
@@ -135,8 +143,8 @@ class KnotWeightSearch:
             return np.concatenate([self.numpy_fitness(x) for x in positions])
 
     def error(self, x: np.ndarray) -> float:
-        inner_u, inner_v, weights, smoothing = self.split(x)
-        rows = self.layout.rows(self.uv, weights, inner_u, inner_v)
+        shape, smoothing = self.split(x)
+        rows = self.layout.rows(self.uv, *shape)
         solver = self.solver.with_smoothing(smoothing)
         try:
             if self.cross_validation:
@@ -148,14 +156,13 @@ class KnotWeightSearch:
 
 
 def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                  point_weights: np.ndarray | None = None) -> float:
+                  shape: NetShape, point_weights: np.ndarray | None = None) -> float:
     """The smoothing weight with the least leave-one-out error at these parameters.
 
     After the polish the parameters are close to foot points, so the choice is sharp:
     vanishing where the net represents the shape, larger where the data are noisy.
     """
-    rows = layout.rows(uv, weights, inner_u, inner_v)
+    rows = layout.rows(uv, *shape)
     grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
     errors = []
     for s in grid:

@@ -8,12 +8,22 @@ converge and only sensible for small clouds; it is kept to reproduce the paper
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from psonurbs.geometry.basis import random_inner_knots
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 
 from .pso import Polytope
+
+
+class FullParticle(NamedTuple):
+    """What a particle of the paper's search space stands for."""
+
+    control: np.ndarray  # (n_free, 3)
+    shape: NetShape  # weights and inner knots
+    uv: np.ndarray  # (N, 2) every point's parameters
 
 
 class FullSearch:
@@ -36,9 +46,10 @@ class FullSearch:
     def dimension(self) -> int:
         return sum(self.sizes)
 
-    def split(self, x: np.ndarray):
+    def split(self, x: np.ndarray) -> FullParticle:
         parts = np.split(x, np.cumsum(self.sizes)[:-1])
-        return (parts[0].reshape(-1, 3), np.exp(parts[1]), parts[2], parts[3], parts[4].reshape(-1, 2))
+        return FullParticle(parts[0].reshape(-1, 3), NetShape(np.exp(parts[1]), parts[2], parts[3]),
+                            parts[4].reshape(-1, 2))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Box bounds per coordinate (knots are bounded by their ordering instead)."""
@@ -93,13 +104,13 @@ class FullSearch:
         return np.array(swarm)
 
     def surface(self, x: np.ndarray):
-        control, weights, inner_u, inner_v, _ = self.split(x)
-        return self.layout.surface(control, weights, inner_u, inner_v)
+        control, shape, _ = self.split(x)
+        return self.layout.surface(control, *shape)
 
     def fitness(self, positions: np.ndarray) -> np.ndarray:
         return np.array([self.error(x) for x in positions])
 
     def error(self, x: np.ndarray) -> float:
-        control, weights, inner_u, inner_v, uv = self.split(x)
-        rows = self.layout.rows(uv, weights, inner_u, inner_v)
+        control, shape, uv = self.split(x)
+        rows = self.layout.rows(uv, *shape)
         return float(np.sqrt(np.mean(np.sum((rows @ control - self.points) ** 2, axis=1))))

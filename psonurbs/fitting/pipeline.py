@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.trim import Trim
@@ -92,8 +92,8 @@ def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int,
 
 
 def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-             control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-             polish_iterations: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
+             control: np.ndarray, shape: NetShape, polish_iterations: int,
+             point_weights: np.ndarray | None = None) -> NurbsSurface:
     """The jointly refined surface with its edges back on the data.
 
     The refinement may let the data retreat from a bounded direction's edges (see
@@ -105,14 +105,14 @@ def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndar
     with its weights, the data's edges re-aligned onto the domain's at every round. A
     surface without edges (sphere, torus) is kept as refined.
     """
-    surface = layout.surface(control, weights, inner_u, inner_v)
+    surface = layout.surface(control, *shape)
     if not any(layout.bounded):
         return surface
     if weighted_rms(closest_parameters(surface, points, uv)[1] ** 2, point_weights) <= RESOLUTION:
         extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
                   for k in (0, 1)]
         return surface.restricted(*extent)
-    return polish(layout, solver, points, uv, weights, inner_u, inner_v, polish_iterations, realign=True,
+    return polish(layout, solver, points, uv, shape, polish_iterations, realign=True,
                   point_weights=point_weights).surface
 
 
@@ -136,35 +136,33 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
     chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
-    inner_u, inner_v, weights, smoothing = search.split(chosen)
+    shape, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
-    control, surface, uv, steps = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                         config.polish_iterations, point_weights=c)
+    control, surface, uv, steps = polish(layout, solver, points, uv, shape, config.polish_iterations,
+                                         point_weights=c)
     if config.robust:
         w, uv = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
         keep = w > 0
         points, uv, seen, c = cloud.points[keep], uv[keep], kept_sample(sample, keep), w[keep]
     # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], weights,
-                                                 inner_u, inner_v, None if c is None else c[seen]))
-    control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                        config.polish_iterations, point_weights=c)
+    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], shape,
+                                                 None if c is None else c[seen]))
+    control, surface, uv, more = polish(layout, solver, points, uv, shape, config.polish_iterations,
+                                        point_weights=c)
     steps += more
     if config.robust:  # the points left out on the first polished surface, judged on the better one
         again, uv_all = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
         if not np.array_equal(again > 0, keep):
             w, keep = again, again > 0
             points, uv, seen, c = cloud.points[keep], uv_all[keep], kept_sample(sample, keep), w[keep]
-            control, surface, uv, more = polish(layout, solver, points, uv, weights, inner_u, inner_v,
-                                                config.polish_iterations, point_weights=c)
+            control, surface, uv, more = polish(layout, solver, points, uv, shape, config.polish_iterations,
+                                                point_weights=c)
             steps += more
     refine_steps, kept = 0, False
     if config.refine:
-        control, weights, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, weights,
-                                                            inner_u, inner_v, np.log(config.weight_bounds),
-                                                            point_weights=c)
-        refined = anchored(layout, solver, points, uv, control, weights, inner_u, inner_v,
-                           config.polish_iterations, c)
+        control, shape, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, shape,
+                                                          np.log(config.weight_bounds), point_weights=c)
+        refined = anchored(layout, solver, points, uv, control, shape, config.polish_iterations, c)
         kept = pays_for_weights(closest_parameters(surface, points)[1], closest_parameters(refined, points)[1],
                                 layout.n_free, c)
         if kept:

@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from psonurbs.geometry.net import NetShape
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 from .solve import weighted_rms
@@ -94,10 +95,10 @@ class Polished(NamedTuple):
     rounds: int  # rounds taken after the first solve
 
 
-def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
-           weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, iterations: int,
+def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, iterations: int,
            realign: bool = False, align: bool = True, point_weights: np.ndarray | None = None) -> Polished:
-    """Alternate the least-squares solve with parameter correction while the error falls,
+    """Alternate the least-squares solve (at the net's ``shape``: weights and knots) with
+    parameter correction of the points (N, 3) at uv (N, 2) while the error falls,
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
     does not lower the error). ``point_weights`` (N,) weigh the solve and the error.
 
@@ -110,8 +111,8 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray,
     uv = best_image = align_to_domain(uv, layout) if align or realign else uv
     mixer = AndersonMixing(layout.closed)
     for it in range(iterations + 1):
-        control = solver.solve(layout.rows(uv, weights, inner_u, inner_v), points, point_weights)
-        surface = layout.surface(control, weights, inner_u, inner_v)
+        control = solver.solve(layout.rows(uv, *shape), points, point_weights)
+        surface = layout.surface(control, *shape)
         new_uv, dist = closest_parameters(surface, points, uv)
         new_rmse = weighted_rms(dist ** 2, point_weights)
         if new_rmse >= rmse * (1.0 - 1e-4):

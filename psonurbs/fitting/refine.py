@@ -31,11 +31,13 @@ direction inside [0, 1], those of a closed one wrap.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.linalg as la
 
 from psonurbs.geometry.chunks import chunks
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.projection import keep_in_domain
 from psonurbs.geometry.rows import Rows
 
@@ -178,14 +180,21 @@ class JointProblem:
         return d_control, d_log_w, d_uv
 
 
+class Refined(NamedTuple):
+    control: np.ndarray  # (n_free, 3) the free control points
+    shape: NetShape  # the start's knots with the refined weights
+    uv: np.ndarray  # (N, 2) the points' parameters
+    rounds: int
+
+
 def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                   control: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                   log_bounds, iterations: int = 12, tolerance: float = 1e-6,
-                   point_weights: np.ndarray | None = None):
-    """Refined (control, weights, uv) and the rounds taken, started from the given ones;
-    ``point_weights`` (N,), all positive, weigh the points' squared distances."""
-    problem = JointProblem(layout, solver, points, inner_u, inner_v, point_weights)
-    log_w = np.clip(np.log(weights), *log_bounds)
+                   control: np.ndarray, shape: NetShape, log_bounds, iterations: int = 12, tolerance: float = 1e-6,
+                   point_weights: np.ndarray | None = None) -> Refined:
+    """Control points, weights and parameters refined together from the given ones (the
+    knots of ``shape`` kept); ``point_weights`` (N,), all positive, weigh the points'
+    squared distances."""
+    problem = JointProblem(layout, solver, points, shape.inner_u, shape.inner_v, point_weights)
+    log_w = np.clip(np.log(shape.weights), *log_bounds)
     uv = keep_in_domain(uv, layout.closed)
     ev = problem.evaluate(control, np.exp(log_w), uv)
     damping, taken = 1e-3, 0
@@ -212,4 +221,4 @@ def refine_jointly(layout: NetLayout, solver: RegularisedLeastSquares, points: n
             damping *= 8.0
         if gain is None or gain < tolerance:
             break
-    return control, np.exp(log_w), uv, taken
+    return Refined(control, shape._replace(weights=np.exp(log_w)), uv, taken)

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
@@ -46,15 +46,15 @@ def big_cloud_sample(n: int, swarm_sample: np.ndarray) -> np.ndarray | None:
     return np.sort(np.concatenate([swarm_sample, extra]))
 
 
-def free_state(layout: NetLayout, surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(free weights, inner knots u, inner knots v) of a surface of this layout."""
+def free_state(layout: NetLayout, surface: NurbsSurface) -> NetShape:
+    """The shape (free weights, inner knots u and v) of a surface of this layout."""
     weights = np.empty(layout.n_free)
     weights[layout.free_index] = surface.weights.ravel()
     inner = []
     for knots, n, p, closed in ((surface.knots_u, layout.size[0], layout.degrees[0], layout.closed[0]),
                                 (surface.knots_v, layout.size[1], layout.degrees[1], layout.closed[1])):
         inner.append(knots[p + 1:p + n] if closed else knots[p + 1:n])
-    return weights, inner[0], inner[1]
+    return NetShape(weights, inner[0], inner[1])
 
 
 class Finished(NamedTuple):
@@ -82,8 +82,7 @@ def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoot
     if np.sqrt(np.mean(dist[keep] ** 2)) <= RESOLUTION:
         return Finished(surface, uv, point_weights, 0)
     solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
-    weights, inner_u, inner_v = free_state(layout, surface)
-    result = polish(layout, solver, points[keep], uv[keep], weights, inner_u, inner_v, FINAL_ROUNDS,
+    result = polish(layout, solver, points[keep], uv[keep], free_state(layout, surface), FINAL_ROUNDS,
                     realign=realign, align=False, point_weights=None if point_weights is None else point_weights[keep])
     uv[keep] = result.uv
     return Finished(result.surface, uv, point_weights, result.rounds + 1)

@@ -116,19 +116,18 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
     cloud = cKDTree(points)
     first, polished, overshoot = [], [], []
     for x in (classical, best):
-        inner_u, inner_v, weights, smoothing = search.split(x)
-        knots = (weights, inner_u, inner_v)
+        shape, smoothing = search.split(x)
         if x is classical:
-            smoothing = loo_smoothing(layout, search.solver, points[seen], uv[seen], *knots, c(seen))
+            smoothing = loo_smoothing(layout, search.solver, points[seen], uv[seen], shape, c(seen))
         solver = search.solver.with_smoothing(smoothing)
-        control = solver.solve(layout.rows(uv[fitted], *knots), points[fitted], c(fitted))
-        first.append(np.linalg.norm(layout.rows(uv[judged], *knots) @ control - points[judged], axis=1))
-        corrected = polish(layout, solver, points[fitted], uv[fitted], *knots, min(polish_iterations, ROUNDS),
+        control = solver.solve(layout.rows(uv[fitted], *shape), points[fitted], c(fitted))
+        first.append(np.linalg.norm(layout.rows(uv[judged], *shape) @ control - points[judged], axis=1))
+        corrected = polish(layout, solver, points[fitted], uv[fitted], shape, min(polish_iterations, ROUNDS),
                            point_weights=c(fitted)).uv
-        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], *knots,
+        solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[:len(seen)], shape,
                                                      c(seen)))
-        control = solver.solve(layout.rows(corrected, *knots), points[fitted], c(fitted))
-        surface = layout.surface(control, *knots)
+        control = solver.solve(layout.rows(corrected, *shape), points[fitted], c(fitted))
+        surface = layout.surface(control, *shape)
         polished.append(closest_parameters(surface, points[judged])[1])
         overshoot.append(cloud.query(surface.evaluate_grid(*surface.parameter_grid(SAMPLES, SAMPLES)).reshape(-1, 3))[0])
     test = Validation(paired_test(*first, c(judged)), paired_test(*polished, c(judged)), paired_test(*overshoot))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -18,6 +19,16 @@ import scipy.sparse as sp
 from .basis import design_matrix, inner_knot_count, make_knots, tensor_basis
 from .nurbs import NurbsSurface
 from .rows import Rows
+
+
+class NetShape(NamedTuple):
+    """The non-linear part of a net's basis, which travels with it through every solve,
+    polish and refinement: the free control points' weights (n_free,) and the inner knots
+    along u and v (None: uniform). ``layout.rows(uv, *shape)``, ``layout.surface(control, *shape)``."""
+
+    weights: np.ndarray
+    inner_u: np.ndarray | None = None
+    inner_v: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
