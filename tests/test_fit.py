@@ -236,6 +236,21 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
     assert not pays_for_weights(np.zeros(5000), np.zeros(5000), 144)
 
 
+def test_a_cloud_the_swarm_would_see_whole_keeps_points_for_its_validation():
+    from psonurbs.fitting.validation import HELD_OUT, swarm_points_of
+
+    seen = np.arange(1089)  # a 33 x 33 grid under the default swarm_points: the sample is every point
+    swarms = swarm_points_of(seen, 1089)
+    assert len(swarms) == 1089 - HELD_OUT and np.all(np.diff(swarms) > 0)
+    gaps = np.diff(np.setdiff1d(seen, swarms))
+    assert gaps.min() >= 5 and gaps.max() <= 6  # held out evenly through the sample, every 5th or 6th
+    sample = np.sort(np.random.default_rng(0).choice(2000, 1500, replace=False))
+    assert np.array_equal(swarm_points_of(sample, 2000), sample)  # 500 already unseen
+    part = np.arange(1750 - HELD_OUT // 2)  # 1650 of 1750 points in the sample: 100 more held out
+    assert len(swarm_points_of(part, 1750)) == 1750 - HELD_OUT
+    assert np.array_equal(swarm_points_of(np.arange(700), 700), np.arange(700))  # a small cloud: all the swarm's
+
+
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
     from psonurbs.fitting.hybrid import KnotWeightSearch
     from psonurbs.fitting.solve import RegularisedLeastSquares

@@ -54,7 +54,7 @@ from .robust import (
 from .sampling import big_cloud_sample, every_foot_point, finished
 from .solve import RegularisedLeastSquares, weighted_rms
 from .topology import choose_topology, layout_for, parametrise_for
-from .validation import held_out_choice
+from .validation import held_out_choice, swarm_points_of
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 
@@ -130,12 +130,14 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     keep = w > 0
     points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
     c = w if config.robust else None  # the point weights of every solve
-    search = KnotWeightSearch(layout, solver, points[seen], uv[seen], config.cross_validation,
-                              config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[seen])
+    swarms = swarm_points_of(seen, len(points))  # the sample, some held out for the validation in a small cloud
+    search = KnotWeightSearch(layout, solver, points[swarms], uv[swarms], config.cross_validation,
+                              config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[swarms])
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
-    chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, seen, config.polish_iterations, c)
+    chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, swarms, config.polish_iterations,
+                                   c)
     shape, smoothing = search.split(chosen)
     solver = solver.with_smoothing(smoothing)
     control, surface, uv, steps = polish(layout, solver, points, uv, shape, config.polish_iterations,
@@ -169,7 +171,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
             surface = refined
     validation = {} if test is None else test.to_dict()
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
-            "swarm": {"points": int(len(seen)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
+            "swarm": {"points": int(len(swarms)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
                       "classical_error": float(search.error(search.classical())), **validation},
             "polish_iterations": int(steps), "refine_iterations": int(refine_steps), "refined": bool(kept)}
     if config.robust:

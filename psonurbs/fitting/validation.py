@@ -43,8 +43,29 @@ from .polish import polish
 from .solve import weighted_rms
 
 Z = 2.0  # standard errors: a one-sided paired z-test at about 2%
+HELD_OUT = 200  # points a cloud of at least 4 x as many keeps from the swarm, for its validation
 ROUNDS = 10  # polish rounds per candidate: most of the parameter correction, a tenth of the time
 SAMPLES = 64  # surface samples per direction for the surface-to-data distances
+
+
+def swarm_points_of(seen: np.ndarray, n_points: int) -> np.ndarray:
+    """The swarm's points (sorted indices) among the sample ``seen`` (sorted indices into
+    the n points): the whole sample, unless the cloud has at least ``4 HELD_OUT`` points
+    of which the sample leaves fewer than ``HELD_OUT`` out; then points spread evenly
+    through the sample are held out of the swarm as well, up to ``HELD_OUT``.
+
+    Without points it never saw, the swarm's best (the least leave-one-out error among
+    thousands of particles: an optimistic pick) would be kept untested; ``HELD_OUT``
+    points give the paired tests half of them to judge on. A smaller cloud is all the
+    swarm's: there it needs every point. Only the swarm and its validation see the
+    smaller set; the rest of the fit (the smoothing's choice, the polish) sees the sample.
+    """
+    missing = HELD_OUT - (n_points - len(seen))
+    if n_points < 4 * HELD_OUT or missing <= 0:
+        return seen
+    held = np.zeros(len(seen), bool)
+    held[(np.arange(missing) * (len(seen) / missing)).astype(int)] = True
+    return seen[~held]
 
 
 @dataclass(frozen=True)
