@@ -323,7 +323,9 @@ def corpus() -> list[Case]:
                           files={"c.ply": GOOD, "quick.yaml": QUICK}))
     # the batch: a worker killed for real, a run terminated
     batch = {f"b{k}.ply": ply(franke(300, seed=k, noise=1e-3)) for k in range(4)}
-    slow = "swarm: {particles: 40, iterations: 300}\npolish_iterations: 20\n"  # seconds per cloud, whatever the machine
+    # seconds per cloud, well past SIGNAL_AFTER whatever the machine (with the compiled fitness too: 40 x 300 took
+    # under a second a cloud, and the batch could end before its signal)
+    slow = "swarm: {particles: 40, iterations: 3000}\npolish_iterations: 20\n"
     cases.append(Case("jobs2_worker_sigkill", ["{dir}", "-c", "{dir}/slow.yaml", "-o", "{dir}/out", "-q", "--jobs",
                                                 "2"], (4,), "batch", setup="kill_worker",
                       files={**batch, "slow.yaml": slow}))
