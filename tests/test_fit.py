@@ -332,3 +332,23 @@ def test_paired_test_measures_the_gain_in_standard_errors():
     info = Validation(better, better, same).to_dict()
     assert info["kept"] == "swarm" and info["held_out_points"] == 4000
     assert info["held_out_z"] == {"first": better.z, "polished": better.z, "overshoot": same.z}
+
+
+def test_a_refined_surface_that_ends_on_the_data_is_preferred_to_one_that_runs_past_it():
+    from psonurbs.fitting.pipeline import ends_nearer
+    from psonurbs.geometry.basis import clamped_knots
+
+    def plate(lo, hi):  # the plane z = 0.1 x over [lo, hi]^2, a bicubic patch
+        g = np.linspace(lo, hi, 4)
+        uu, vv = np.meshgrid(g, g, indexing="ij")
+        cp = np.stack([uu, vv, 0.1 * uu], axis=-1)
+        return NurbsSurface(3, 3, clamped_knots(4, 3), clamped_knots(4, 3), cp, np.ones((4, 4)))
+
+    rng = np.random.default_rng(4)
+    xy = rng.random((2000, 2))
+    points = np.column_stack([xy, 0.1 * xy[:, 0]])
+    d = np.abs(rng.normal(0.0, 1e-4, len(points)))  # the same distances to both: a plane holds every point
+    past, on = plate(-0.15, 1.15), plate(0.0, 1.0)  # one runs 0.15 past every edge of the data
+    assert ends_nearer(past, on, points, d, d)
+    assert not ends_nearer(on, past, points, d, d)
+    assert not ends_nearer(past, on, points, d, 3.0 * d)  # nearer its ends, but farther from the points
