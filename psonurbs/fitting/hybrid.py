@@ -107,11 +107,15 @@ class KnotWeightSearch:
         """Particles evaluated together: their rows take about ``GROUP_BYTES``."""
         return max(1, GROUP_BYTES // (8 * len(self.points) * int(np.prod(np.add(self.layout.degrees, 1)))))
 
+    def stacked_shapes(self, positions: np.ndarray) -> NetShape:
+        """The shapes of the particles (P, D) stacked: weights (P, n_free), inner knots
+        (P, inner u), (P, inner v)."""
+        cu, cv = self.counts
+        return NetShape(np.exp(positions[:, cu + cv:-1]), positions[:, :cu], positions[:, cu:cu + cv])
+
     def rows(self, positions: np.ndarray) -> StackedRows:
         """The rows of the particles (P, D) at the search's points, all together."""
-        cu, cv = self.counts
-        return stacked_rows(self.stacked.cells, self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
-                            positions[:, cu:cu + cv])
+        return stacked_rows(self.stacked.cells, self.uv, *self.stacked_shapes(positions))
 
     def fitness(self, positions: np.ndarray) -> np.ndarray:
         """The error of every particle (P,), all evaluated together; inf for a particle
@@ -122,10 +126,8 @@ class KnotWeightSearch:
     def compiled_fitness(self, positions: np.ndarray) -> np.ndarray:
         """:meth:`fitness` by the compiled kernel, particle by particle."""
         positions = np.atleast_2d(positions)
-        cu, cv = self.counts
-        return self.stacked.compiled_errors(self.uv, np.exp(positions[:, cu + cv:-1]), positions[:, :cu],
-                                            positions[:, cu:cu + cv], self.points, 10.0 ** positions[:, -1],
-                                            self.cross_validation, self.point_weights)
+        return self.stacked.compiled_errors(self.uv, *self.stacked_shapes(positions), self.points,
+                                            10.0 ** positions[:, -1], self.cross_validation, self.point_weights)
 
     def numpy_fitness(self, positions: np.ndarray) -> np.ndarray:
         """:meth:`fitness` by numpy (the reference), the particles in groups of stacked rows."""

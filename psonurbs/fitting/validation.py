@@ -48,6 +48,12 @@ ROUNDS = 10  # polish rounds per candidate: most of the parameter correction, a 
 SAMPLES = 64  # surface samples per direction for the surface-to-data distances
 
 
+def reach(surface, cloud: cKDTree) -> np.ndarray:
+    """Distances (SAMPLES^2,) from a SAMPLES x SAMPLES grid of the surface to the nearest
+    point of the cloud: where a surface runs past the data, or folds away from them."""
+    return cloud.query(surface.evaluate_grid(*surface.parameter_grid(SAMPLES, SAMPLES)).reshape(-1, 3))[0]
+
+
 def swarm_points_of(seen: np.ndarray, n_points: int) -> np.ndarray:
     """The swarm's points (sorted indices) among the sample ``seen`` (sorted indices into
     the n points): the whole sample, unless the cloud has at least ``4 HELD_OUT`` points
@@ -150,6 +156,6 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
         control = solver.solve(layout.rows(corrected, *shape), points[fitted], c(fitted))
         surface = layout.surface(control, *shape)
         polished.append(closest_parameters(surface, points[judged])[1])
-        overshoot.append(cloud.query(surface.evaluate_grid(*surface.parameter_grid(SAMPLES, SAMPLES)).reshape(-1, 3))[0])
+        overshoot.append(reach(surface, cloud))
     test = Validation(paired_test(*first, c(judged)), paired_test(*polished, c(judged)), paired_test(*overshoot))
     return (best if test.kept == "swarm" else classical), test
