@@ -43,3 +43,28 @@ def test_an_inline_helper_computes_the_same_inside_a_kernel():
         return out
 
     assert total(np.arange(4.0)) == 1.0 + 2.0 + 5.0 + 10.0 and squared_plus_one(3.0) == 10.0
+
+
+def test_threads_come_from_the_environment_and_the_worker_limit(monkeypatch):
+    monkeypatch.setenv("PSONURBS_THREADS", "3")
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert compiled.threads() == 3
+    monkeypatch.delenv("PSONURBS_THREADS")
+    assert compiled.threads() == 1  # a worker process of --jobs or dask: one thread a fit
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert compiled.threads() >= 1
+
+
+def test_over_parts_covers_every_item_once_in_parts_of_at_least_the_smallest(monkeypatch):
+    monkeypatch.setenv("PSONURBS_THREADS", "4")
+    for count, smallest in ((10, 1), (10, 3), (5, 10), (0, 1), (1001, 100)):
+        seen, parts = np.zeros(count, int), []
+
+        def run(part, seen=seen, parts=parts):
+            seen[part] += 1
+            parts.append(part.stop - part.start)
+
+        compiled.over_parts(count, run, smallest)
+        assert (seen == 1).all(), (count, smallest)
+        expected = max(1, min(4, count // smallest)) if compiled.ENABLED else 1
+        assert len(parts) == expected and (count == 0 or min(parts) >= min(smallest, count)), (count, parts)

@@ -107,6 +107,22 @@ def test_compiled_search_finds_the_numpy_foot_points(name, monkeypatch):
 
 
 @needs_numba
+def test_the_compiled_search_in_threads_gives_the_bytes_of_one(monkeypatch):
+    """Points are split among threads (compiled.over_parts): 1, 2 and 3 threads, the same bytes."""
+    import psonurbs.geometry.projection as projection
+
+    rng = np.random.default_rng(5)
+    surface, uv, points = fitted_surface("torus", rng)
+    points, start = np.tile(points, (4, 1)) + 0.05 * rng.normal(size=(6000, 3)), np.tile(uv, (4, 1))
+    monkeypatch.setattr(projection, "THREAD_POINTS", 1000)
+    found = []
+    for n in (1, 2, 3):
+        monkeypatch.setenv("PSONURBS_THREADS", str(n))
+        found.append([a.tobytes() for a in closest_parameters(surface, points, start)])
+    assert found[0] == found[1] == found[2]
+
+
+@needs_numba
 def test_compiled_search_takes_the_given_iterations_and_no_more(monkeypatch):
     """With one Newton step allowed, both stop after it at the same place (part way)."""
     surface, uv, points = fitted_surface("cylinder", np.random.default_rng(2))

@@ -154,3 +154,15 @@ def test_a_particle_that_is_not_positive_definite_scores_inf_and_the_others_are_
     keep = [0, 1, 3]
     expected = search.stacked.errors(search.rows(swarm[keep]), search.points, smoothing[keep], True)
     np.testing.assert_allclose(got[keep], expected, rtol=1e-11, atol=0)
+
+
+@pytest.mark.parametrize("name", ["open", "quadratic cylinder"])
+def test_the_fitness_in_threads_is_the_fitness_in_one(name, monkeypatch):
+    """Particles are split among threads (compiled.over_parts): the same bytes with 1, 2 or 3."""
+    search = net_search(name, True)
+    swarm = search.initial_swarm(11, np.random.default_rng(4))
+    found = {}
+    for n in (1, 2, 3):
+        monkeypatch.setenv("PSONURBS_THREADS", str(n))
+        found[n] = search.compiled_fitness(swarm).tobytes()
+    assert found[1] == found[2] == found[3]

@@ -26,6 +26,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
+from psonurbs.geometry import compiled
 from psonurbs.geometry.compiled import kernel
 from psonurbs.geometry.stacked_rows import LANES, CellLayout, StackedRows, knot_vectors, particle_cells, particle_rows
 
@@ -75,18 +76,27 @@ class StackedLeastSquares:
         layout = self.cells.layout
         knots = [np.ascontiguousarray(knot_vectors(n, d, c, inner)) for n, d, c, inner in
                  zip(layout.size, layout.degrees, layout.closed, (inner_u, inner_v))]
+        knots = [k if len(k) == len(weights) else np.repeat(k, len(weights), axis=0) for k in knots]  # a row each
         smoothing = np.asarray(smoothing, float)
         scales = np.column_stack([smoothing / self.solver.penalty_trace if weight is None
                                   else np.full(len(smoothing), weight) for *_, weight in self.terms]
                                  or [np.zeros(len(smoothing))])
         entries, values = self._upper_terms
         point_weights = np.ones(len(data)) if point_weights is None else np.asarray(point_weights, float)
-        return particle_errors(np.ascontiguousarray(uv, float), np.ascontiguousarray(data, float),
-                               np.ascontiguousarray(point_weights), knots[0], knots[1],
-                               np.ascontiguousarray(weights, float), np.asarray(layout.degrees, np.int64),
-                               self.cells.shape[1], self.cells.columns.astype(np.int64),
-                               self.columns.astype(np.int64), self.order.half_bandwidth, entries, values,
-                               np.ascontiguousarray(scales), bool(cross_validation))
+        uv, data, point_weights = (np.ascontiguousarray(a, float) for a in (uv, data, point_weights))
+        weights, scales = np.ascontiguousarray(weights, float), np.ascontiguousarray(scales)
+        degrees, cell_columns = np.asarray(layout.degrees, np.int64), self.cells.columns.astype(np.int64)
+        band_columns = self.columns.astype(np.int64)
+        out = np.empty(len(weights))
+
+        def evaluate(part: slice) -> None:  # particles are independent: a part's errors are its own
+            out[part] = particle_errors(uv, data, point_weights, knots[0][part], knots[1][part], weights[part],
+                                        degrees, self.cells.shape[1], cell_columns, band_columns,
+                                        self.order.half_bandwidth, entries, values, scales[part],
+                                        bool(cross_validation))
+
+        compiled.over_parts(len(weights), evaluate)
+        return out
 
     def _entries(self, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         r, c = np.nonzero(matrix)

@@ -9,10 +9,17 @@ comes from the numpy code, a few times slower.
 Kernels are compiled on first use and cached on disk (``cache=True``: next to the
 source, or in numba's user-wide cache when that is not writable), so only the first fit
 on a machine pays the compile time. No ``fastmath``: the same inputs give the same bits.
+
+Kernels release the GIL (``nogil``), so a kernel over independent items (points, particles)
+runs on parts of them in threads (:func:`over_parts`): up to :func:`threads` at once. Each
+item's numbers are its own, so the bits do not depend on the split.
 """
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
+from typing import Callable
 
 try:
     if os.environ.get("PSONURBS_NO_JIT", "") not in ("", "0"):
@@ -35,3 +42,35 @@ def kernel(function=None, *, inline: bool = False):
     if numba is None:
         return function
     return numba.njit(cache=True, nogil=True, inline="always" if inline else "never")(function)
+
+
+def threads() -> int:
+    """Threads a kernel over independent items may use: ``PSONURBS_THREADS``, else
+    ``OMP_NUM_THREADS`` (1 in the worker processes of ``--jobs`` and of dask, which fit
+    one cloud per core), else every CPU this process may run on."""
+    for name in ("PSONURBS_THREADS", "OMP_NUM_THREADS"):
+        try:
+            return max(1, int(os.environ[name]))
+        except (KeyError, ValueError):
+            continue
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+@lru_cache(maxsize=4)
+def _pool(size: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=size, thread_name_prefix="psonurbs-kernel")
+
+
+def over_parts(count: int, run: Callable[[slice], None], smallest: int = 1) -> None:
+    """``run(part)`` for contiguous slices covering range(count), each at least ``smallest``
+    items, in up to :func:`threads` threads at once (one call, in this thread, when one
+    thread is all there is or the items are too few to share); exceptions propagate.
+    ``run`` must write only its own part of any shared output."""
+    parts = min(threads(), count // max(smallest, 1)) if ENABLED else 1
+    if parts <= 1:
+        run(slice(0, count))
+        return
+    bounds = [count * k // parts for k in range(parts + 1)]
+    futures = [_pool(parts).submit(run, slice(a, b)) for a, b in zip(bounds, bounds[1:])]
+    for future in futures:
+        future.result()

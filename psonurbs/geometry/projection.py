@@ -27,6 +27,7 @@ from .nurbs import NurbsSurface
 LINE_SEARCH_HALVINGS = 8
 PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve
 FOOT_POINT_CHUNK = 1 << 15  # points searched together: some 30 MB of derivatives and trial arrays
+THREAD_POINTS = 2048  # fewest points a thread of the compiled search takes (a thread's start costs ~50 us)
 COMPILED = compiled.ENABLED  # the search's one switch: the compiled twin, or the numpy reference
 
 
@@ -76,11 +77,16 @@ def compiled_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarr
     """:func:`newton_foot_points` by the compiled kernel :func:`.foot_kernel.foot_points`."""
     out_uv, out_dist = np.empty((len(points), 2)), np.empty(len(points))
     weighted_net = (surface.control_points * surface.weights[..., None]).reshape(-1, 3)
-    foot_kernel.foot_points(surface.knots_u, surface.knots_v, int(surface.degree_u), int(surface.degree_v),
-                            int(surface.shape[1]), weighted_net, np.ascontiguousarray(surface.weights.reshape(-1)),
-                            bool(closed[0]), bool(closed[1]), np.ascontiguousarray(points, float),
-                            np.ascontiguousarray(uv, float), int(iterations), LINE_SEARCH_HALVINGS,
-                            PARAMETER_TOLERANCE, out_uv, out_dist)
+    weights = np.ascontiguousarray(surface.weights.reshape(-1))
+    points, uv = np.ascontiguousarray(points, float), np.ascontiguousarray(uv, float)
+
+    def search(part: slice) -> None:
+        foot_kernel.foot_points(surface.knots_u, surface.knots_v, int(surface.degree_u), int(surface.degree_v),
+                                int(surface.shape[1]), weighted_net, weights, bool(closed[0]), bool(closed[1]),
+                                points[part], uv[part], int(iterations), LINE_SEARCH_HALVINGS, PARAMETER_TOLERANCE,
+                                out_uv[part], out_dist[part])
+
+    compiled.over_parts(len(points), search, THREAD_POINTS)
     return out_uv, out_dist
 
 
