@@ -46,6 +46,15 @@ from .solve import RegularisedLeastSquares
 REFINE_CHUNK = 1 << 14  # points whose Jacobian blocks are formed together: some 40 MB at m = 16
 
 
+class Chunk(NamedTuple):
+    """A chunk of the points with what every step reuses from the linearisation."""
+    part: slice  # the chunk's points
+    piece: Rows  # their basis rows
+    scaled: Rows  # the rows of the weighted problem, sqrt(c_i) R
+    blocks: object  # piece.blocks(): the rows grouped by knot-span cell
+    t: np.ndarray  # (c, m, 2) t_i = (P_c - S_i) . J_l: the weights' coupling to the parameters
+
+
 class JointProblem:
     def __init__(self, layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray,
                  inner_u: np.ndarray, inner_v: np.ndarray, point_weights: np.ndarray | None = None):
@@ -83,7 +92,8 @@ class JointProblem:
             piece = rows.take(part)
             scaled = piece.scaled(self.root[part])  # the rows of the weighted problem, sqrt(c_i) R
             blocks = piece.blocks()
-            vs = scaled.values[:, :, None] * (control[piece.columns] - (piece @ control)[:, None, :])  # (c, m, 3)
+            offsets = control[piece.columns] - (piece @ control)[:, None, :]  # P_c - S_i, (c, m, 3)
+            vs = scaled.values[:, :, None] * offsets
             for batch in blocks.batches:
                 v, vs_b = blocks.pad(scaled.values, batch), blocks.pad(vs, batch)
                 plain = blocks.place(np.matmul(v.transpose(0, 2, 1), v), batch)
@@ -95,17 +105,22 @@ class JointProblem:
                     gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
             g[:3 * n] += scaled.project(res[part]).ravel()
             g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
-            parts.append((part, piece, scaled, blocks))
+            parts.append((part, piece, scaled, blocks, offsets))
         penalty = np.kron(ev["regulariser"], np.eye(3))
         gram[:3 * n, :3 * n] += penalty
         g[:3 * n] += penalty @ control.ravel()
         jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
-        return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
+        chunked = [Chunk(part, piece, scaled, blocks, sum(offsets[:, :, k, None] * jl[part][:, None, k, :]
+                                                          for k in range(3)))
+                   for part, piece, scaled, blocks, offsets in parts]
+        return {"parts": chunked, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
 
     @staticmethod
-    def _point_terms(lin: dict, part: slice, piece: Rows, damping: float, frozen: np.ndarray | None) -> dict:
+    def _point_terms(lin: dict, chunk: "Chunk", damping: float, frozen: np.ndarray | None) -> dict:
         """A chunk's per-point blocks: C_i = J_l^T J_l + damping (its Cholesky factor L_i
-        in closed form), ``t_i = (P_c - S_i) . J_l`` (chunk, m, 2) and ``J_l^T r_i``."""
+        in closed form), ``t_i = (P_c - S_i) . J_l`` (chunk, m, 2) and ``J_l^T r_i``; a
+        frozen parameter's column of J_l (and of t) is zero."""
+        part = chunk.part
         jl = lin["jl"][part] if frozen is None else lin["jl"][part] * ~frozen[part, None, :]  # (c, 3, 2)
         a = np.sum(jl[:, :, 0] ** 2, axis=1)
         c = np.sum(jl[:, :, 1] ** 2, axis=1)
@@ -117,9 +132,7 @@ class JointProblem:
         l11 = np.sqrt(a)
         l21 = off / l11
         l22 = np.sqrt(np.maximum(c - l21 ** 2, 1e-300))
-        control = lin["control"]
-        s = control[piece.columns] - (piece @ control)[:, None, :]  # P_c - S_i, (c, m, 3)
-        t = sum(s[:, :, k, None] * jl[:, None, k, :] for k in range(3))
+        t = chunk.t if frozen is None else chunk.t * ~frozen[part, None, :]
         return {"jl": jl, "a": a, "c": c, "off": off, "det": a * c - off ** 2, "l11": l11, "l21": l21, "l22": l22,
                 "t": t, "c_vec": np.sum(jl * lin["residual"][part][:, :, None], axis=1)}
 
@@ -142,8 +155,11 @@ class JointProblem:
         n = self.n
         ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
         schur, rhs = lin["gram"].copy(), -lin["g"]
-        for part, piece, scaled, blocks in lin["parts"]:
-            q = self._point_terms(lin, part, piece, damping, frozen)
+        terms = []
+        for chunk in lin["parts"]:
+            part, piece, scaled, blocks = chunk.part, chunk.piece, chunk.scaled, chunk.blocks
+            q = self._point_terms(lin, chunk, damping, frozen)
+            terms.append(q)
             v, jl, t, l11, l22, ratio = scaled.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
             a = np.stack([jl[:, :, 0] / l11[:, None], (jl[:, :, 1] - jl[:, :, 0] * ratio[:, None]) / l22[:, None]],
                          axis=2)  # (c, 3, 2): a_ek
@@ -154,27 +170,32 @@ class JointProblem:
                 vt = vb.transpose(0, 2, 1)
                 for k in range(3):
                     for j in range(k, 3):
-                        scale = np.sum(ab[:, :, k, :] * ab[:, :, j, :], axis=2)[:, :, None]
+                        scale = (ab[:, :, k, 0] * ab[:, :, j, 0] + ab[:, :, k, 1] * ab[:, :, j, 1])[:, :, None]
                         block = blocks.place(np.matmul(vt, scale * vb), batch)
                         schur[ctrl[k], ctrl[j]] -= block
                         if j != k:
                             schur[ctrl[j], ctrl[k]] -= block.T
-                    mixed = np.sum(ab[:, :, k, None, :] * zb, axis=3)
+                    # sum over e of a_ek z_ec, written out: a reduction over a last axis of 2 is slow
+                    mixed = ab[:, :, k, None, 0] * zb[..., 0] + ab[:, :, k, None, 1] * zb[..., 1]
                     cross = blocks.place(np.matmul(vt, mixed), batch)
                     schur[ctrl[k], wts] -= cross
                     schur[wts, ctrl[k]] -= cross.T
                 schur[wts, wts] -= sum(blocks.place(np.matmul(zb[..., e].transpose(0, 2, 1), zb[..., e]), batch)
                                        for e in range(2))
             w_vec = self._c_inverse(q, q["c_vec"])
-            rhs[:3 * n] += scaled.project(np.sum(jl * w_vec[:, None, :], axis=2)).ravel()
-            rhs[wts] += np.bincount(piece.columns.ravel(), (v * np.sum(t * w_vec[:, None, :], axis=2)).ravel(), n)
+            # sums over a last axis of 2 written out (numpy's reduction over it is slow)
+            rhs[:3 * n] += scaled.project(jl[..., 0] * w_vec[:, None, 0] + jl[..., 1] * w_vec[:, None, 1]).ravel()
+            rhs[wts] += np.bincount(piece.columns.ravel(),
+                                    (v * (t[..., 0] * w_vec[:, None, 0] + t[..., 1] * w_vec[:, None, 1])).ravel(), n)
         schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
         d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
         d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
         d_uv = np.empty((len(lin["residual"]), 2))
-        for part, piece, scaled, _ in lin["parts"]:
-            q = self._point_terms(lin, part, piece, damping, frozen)
-            bt_d = np.sum(q["jl"] * (scaled @ d_control)[:, :, None], axis=1) + np.sum(
+        for chunk, q in zip(lin["parts"], terms):
+            part, piece, scaled = chunk.part, chunk.piece, chunk.scaled
+            moved = scaled @ d_control  # (c, 3)
+            jl = q["jl"]
+            bt_d = (jl[:, 0] * moved[:, 0, None] + jl[:, 1] * moved[:, 1, None] + jl[:, 2] * moved[:, 2, None]) + np.sum(
                 (scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
             d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
         return d_control, d_log_w, d_uv
