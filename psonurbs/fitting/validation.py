@@ -46,12 +46,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.net import NetLayout, NetShape
+from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .hybrid import KnotWeightSearch, loo_smoothing
 from .polish import polish
-from .solve import weighted_rms
+from .solve import RegularisedLeastSquares, weighted_rms
 
 Z = 2.0  # standard errors: a one-sided paired z-test at about 2%
 HELD_OUT = 200  # points a cloud of at least 4 x as many keeps from the swarm, for its validation
@@ -131,16 +132,16 @@ class Validation:
                 "kept": self.kept}
 
 
-def finished(layout: NetLayout, solver, points: np.ndarray, uv: np.ndarray, shape, n_seen: int, rounds: int,
-             point_weights: np.ndarray | None = None):
+def finished(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+             shape: NetShape, n_seen: int, rounds: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
     """A candidate's surface finished as the pipeline finishes the one it keeps: polished
-    at its own smoothing (``rounds`` rounds at most), the smoothing re-chosen by
-    leave-one-out on the first ``n_seen`` points (the swarm's) at the corrected
-    parameters, polished again."""
-    w = (lambda idx: None) if point_weights is None else (lambda idx: point_weights[idx])
-    corrected = polish(layout, solver, points, uv, shape, rounds, point_weights=point_weights).uv
+    at its own smoothing (``solver``'s; ``rounds`` rounds at most), the smoothing
+    re-chosen by leave-one-out on the first ``n_seen`` points (the swarm's) at the
+    corrected parameters, polished again."""
     seen = slice(0, n_seen)
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[seen], shape, w(seen)))
+    corrected = polish(layout, solver, points, uv, shape, rounds, point_weights=point_weights).uv
+    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[seen], shape,
+                                                 None if point_weights is None else point_weights[seen]))
     return polish(layout, solver, points, corrected, shape, rounds, point_weights=point_weights).surface
 
 
