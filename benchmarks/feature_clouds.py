@@ -2,11 +2,13 @@
 """Clouds outside the public benchmark: localised features where knot placement decides
 the fit, and smooth shapes where the swarm should change nothing for the worse.
 
-    python benchmarks/feature_clouds.py [--out DIR] [--only NAME ...] [--variants classical swarm] [--scorer SCORE_PY]
+    python benchmarks/feature_clouds.py [--out DIR] [--only NAME ...] [--variants classical swarm] [--scorer SCORE_PY] [--seed N]
 
 Each cloud has a known surface and is written like a public case (PLY, YAML config,
 ground-truth mesh) with ``benchmarks/cases.py``; then it is fitted with ``psonurbs fit``
 and scored with ``benchmarks/score.py`` exactly as ``run_cases.py`` does (``classical``: one particle, one iteration; ``swarm``: the config).
+``--seed`` draws other clouds of the same shapes (0: the clouds measured so far), so that
+a change can be checked on draws nobody has tuned for.
 The table ends with the ratio of the swarm's truth_rms to the classical one per cloud.
 """
 from __future__ import annotations
@@ -72,6 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", nargs="*", default=["classical", "swarm"])
     ap.add_argument("--scorer", type=Path, metavar="SCORE_PY",
                     help="score with this script instead of benchmarks/score.py (as run_cases.py --scorer)")
+    ap.add_argument("--seed", type=int, default=0, help="the clouds' draw (0: the usual ones; others: fresh draws)")
     args = ap.parse_args(argv)
     scorer = score if args.scorer is None else outside_score(args.scorer)
     cases = feature_cases()
@@ -84,7 +87,7 @@ def main(argv=None) -> int:
     print("|" + "---|" * len(header))
     truth = {}
     for name in names:
-        write(cases[name], cases_dir)
+        write(cases[name], cases_dir, args.seed)
         for variant in args.variants:
             r = fit_and_score(name, variant, cases_dir, root / "results", scorer=scorer)
             if "error" in r:
