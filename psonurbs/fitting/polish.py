@@ -21,23 +21,22 @@ def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float
     value in each of ``bins`` slices of ``along``.
 
     A straight edge's points lie beyond that line by no more than their sampling
-    ``scatter``; if some reach farther, the edge bends away from the line (an ellipse's
-    does) and the line is moved out to the outermost point, so that every point lies on
-    its inner side (a supporting line, parallel to the fitted one).
+    ``scatter``. If some reach farther, the edge is not straight (an ellipse's bends
+    away from the line, a scan's is ragged): it has no line to follow, and the edge is
+    the data's extreme, ``across`` constant.
     """
     slices = np.minimum((along * bins).astype(int), bins - 1)
     order = np.lexsort((-across if upper else across, slices))
     first = order[np.r_[True, slices[order][1:] != slices[order][:-1]]]
     if len(first) < 2:
-        line = np.full(len(along), across[first].mean())
-    else:
-        b, a = np.polyfit(along[first], across[first], 1)
-        line = a + b * along
+        return np.full(len(along), across[first].mean())
+    b, a = np.polyfit(along[first], across[first], 1)
+    line = a + b * along
     beyond = float(np.max(across - line) if upper else np.max(line - across))
-    return line if beyond <= scatter else line + (beyond if upper else -beyond)
+    return line if beyond <= scatter else np.full(len(along), across.max() if upper else across.min())
 
 
-def align_to_domain(uv: np.ndarray, layout) -> np.ndarray:
+def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
     """Map the data's extent in each bounded direction (``layout.bounded``: one with
     edges, not closed and not ending in poles) back onto [0, 1].
 
@@ -50,16 +49,19 @@ def align_to_domain(uv: np.ndarray, layout) -> np.ndarray:
 
     The sampling scatter of an edge is ``ALPHA`` spacings (the alpha shape's scale of a
     sampling gap, :mod:`psonurbs.fitting.footprint`), the spacing s = sqrt(A / N) of N
-    points over the area A of their bounding box. Past a curved edge the points would
-    reach farther, and putting them on the line would squeeze a whole cap of the data
-    onto the domain's edge: a bent parametrisation, in which even a surface the net
-    represents exactly in its plain parameters (plate_holes' quadric over an ellipse)
-    is no longer represented. There the line supports the data instead, and the trim
-    cuts the surface back to them.
+    points over the area A of their bounding box. Past an edge that is not straight
+    the points reach farther, and putting them on a line through its extremes would
+    squeeze a whole cap of the data onto the domain's edge: a bent parametrisation, in
+    which even a surface the net represents exactly in its plain parameters
+    (plate_holes' quadric over an ellipse) is no longer represented. Such an edge is
+    the data's extreme instead (the map stays affine), and the trim cuts the surface
+    back to the data. With ``support`` False every edge is a line, as before this
+    rule: the re-alignment at every round of parameter correction (``realign``) keeps
+    putting the foot points that run past an edge back on it.
     """
     out = uv.copy()
     box = np.ptp(out, axis=0)
-    scatter = ALPHA * float(np.sqrt(max(box[0] * box[1], 0.0) / max(len(out), 1)))
+    scatter = ALPHA * float(np.sqrt(max(box[0] * box[1], 0.0) / max(len(out), 1))) if support else np.inf
     for k in (0, 1):
         if not layout.bounded[k]:
             continue
@@ -144,6 +146,6 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
             uv = best_image
             continue
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        best_image = align_to_domain(new_uv, layout) if realign else new_uv
+        best_image = align_to_domain(new_uv, layout, support=False) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
     return Polished(best_control, best, best_uv, it)
