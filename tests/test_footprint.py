@@ -152,7 +152,8 @@ def test_a_well_spread_subsample_thins_the_dense_and_keeps_the_sparse():
 
 def test_a_face_finer_than_the_raster_leaves_the_surface_untrimmed():
     # two clusters 1e6 apart (a hostile input): the surface spans both, the face is one
-    # cluster, far below one cell of the footprint's raster; no loops, not a crash
+    # cluster, which holds few of the points (and lies far below one cell of the
+    # footprint's raster); no loops, not a crash
     from test_fit import config
 
     from psonurbs.fitting.pipeline import fit_points
@@ -166,3 +167,16 @@ def test_a_face_finer_than_the_raster_leaves_the_surface_untrimmed():
     result = fit_points(pts, config(swarm={"particles": 4, "iterations": 3}, polish_iterations=5))
     assert result.info["trim"]["trimmed"] is False and result.info["trim"]["loops"] == 0
     assert np.all(np.isfinite(result.surface.control_points))
+
+
+def test_a_face_that_holds_few_of_the_points_is_not_their_footprint():
+    # the largest piece (by area) holds 120 of the 420 points, a dense cluster far from
+    # it the other 300: the face would leave most points off it, so no trim; with the
+    # cluster's share lower the same piece is the face
+    rng = np.random.default_rng(3)
+    spread = 0.05 + 0.4 * rng.random((120, 2))
+    cluster = 0.8 + 0.03 * rng.random((300, 2))
+    face = fit_footprint(np.vstack([spread, cluster]), mode=True)
+    assert face.trim is None and face.loops == 0
+    kept = fit_footprint(np.vstack([spread, cluster[:100]]), mode=True)
+    assert kept.trim is not None and kept.fragment_points == 100

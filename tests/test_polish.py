@@ -74,3 +74,40 @@ def test_joint_refinement_with_an_integer_weight_is_the_point_given_twice():
     np.testing.assert_allclose(weighted.shape.weights, repeated.shape.weights, rtol=1e-7)
     np.testing.assert_allclose(weighted.uv, repeated.uv[:120], atol=1e-9)
     assert weighted.rounds == repeated.rounds
+
+
+def test_a_curved_edge_is_aligned_without_bending_the_parameters():
+    """Points over an ellipse: the lines fitted through the extremes of its curved edges
+    would leave a cap of the data beyond them (putting it on the edges bent the
+    parameters by up to 0.069 from an affine map, with 87-131 points on each edge); the
+    edges are the data's extremes instead: the map is affine, the data span [0, 1] and
+    one point is on each edge."""
+    from psonurbs.fitting.polish import align_to_domain
+    from psonurbs.fitting.topology import layout_for
+
+    rng = np.random.default_rng(2)
+    uv = rng.random((8000, 2))
+    uv = uv[((uv[:, 0] - 0.5) / 0.48) ** 2 + ((uv[:, 1] - 0.5) / 0.36) ** 2 < 1.0][:5000]
+    out = align_to_domain(uv, layout_for("open", (8, 8), (3, 3)))
+    affine = np.c_[np.ones(len(uv)), uv]
+    for k in (0, 1):
+        residual = out[:, k] - affine @ np.linalg.lstsq(affine, out[:, k], rcond=None)[0]
+        assert np.abs(residual).max() < 1e-12, k
+        assert out[:, k].min() == 0.0 and out[:, k].max() == 1.0
+        assert np.sum(out[:, k] == 0.0) == 1 and np.sum(out[:, k] == 1.0) == 1
+
+
+def test_a_straight_edge_puts_the_points_past_its_line_on_the_domain_edge():
+    """A rectangle's edges, the parameters jittered by a tenth of the spacing: the lines
+    through the edges' extremes are the edges, and the few points past them go onto the
+    domain's edges (a straight edge is aligned as it always was)."""
+    from psonurbs.fitting.polish import align_to_domain
+    from psonurbs.fitting.topology import layout_for
+
+    rng = np.random.default_rng(4)
+    uv = 0.1 + 0.8 * rng.random((4000, 2)) + rng.normal(0.0, 0.1 * 0.8 / 63, (4000, 2))
+    out = align_to_domain(uv, layout_for("open", (8, 8), (3, 3)))
+    for k in (0, 1):
+        assert np.sum(out[:, k] == 0.0) > 1 and np.sum(out[:, k] == 1.0) > 1, k  # the extreme: 1
+        inner = (out[:, k] > 0.0) & (out[:, k] < 1.0)
+        np.testing.assert_allclose(out[inner, k], (uv[inner, k] - 0.1) / 0.8, atol=0.01)

@@ -31,7 +31,9 @@ it, so that the loops hold them all (the subsample's own boundary lies inside th
 by a fraction of its spacing). The points off the face, the fragments' points and the
 distances are still those of every point.
 
-``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
+A face that holds fewer than half of the points (a fit far from the data, pieces of
+the cloud spread over the domain) is not the data's footprint: the surface is left
+untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
 domain: an empty disc of radius at least ``ALPHA`` median spacings (as wide as the gaps the
 alpha shape opens; a cloud that fills its rectangle leaves only sampling gaps along the
 edges); ``true`` always; ``false`` never.
@@ -286,7 +288,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     if mode is False or len(uv) < 4:
         return whole
     found = face_contours(surface, uv, distances)
-    if found is None:
+    if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
     if mode == "auto" and found.empty_radius < ALPHA * found.spacing and len(found.polygons) == 1:
         return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,

@@ -11,33 +11,57 @@ import numpy as np
 from psonurbs.geometry.net import NetShape
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
+from .footprint import ALPHA
 from .solve import weighted_rms
 
 
-def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, bins: int = 8) -> np.ndarray:
-    """A straight line ``across = a + b * along`` through the data's edge, evaluated at
+def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = 8) -> np.ndarray:
+    """A straight line ``across = a + b * along`` along the data's edge, evaluated at
     every point: the least-squares line through the lowest (or highest) ``across``
-    value in each of ``bins`` slices of ``along``."""
+    value in each of ``bins`` slices of ``along``.
+
+    A straight edge's points lie beyond that line by no more than their sampling
+    ``scatter``. If some reach farther, the edge is not straight (an ellipse's bends
+    away from the line, a scan's is ragged): it has no line to follow, and the edge is
+    the data's extreme, ``across`` constant.
+    """
     slices = np.minimum((along * bins).astype(int), bins - 1)
     order = np.lexsort((-across if upper else across, slices))
     first = order[np.r_[True, slices[order][1:] != slices[order][:-1]]]
     if len(first) < 2:
         return np.full(len(along), across[first].mean())
     b, a = np.polyfit(along[first], across[first], 1)
-    return a + b * along
+    line = a + b * along
+    beyond = float(np.max(across - line) if upper else np.max(line - across))
+    return line if beyond <= scatter else np.full(len(along), across.max() if upper else across.min())
 
 
-def align_to_domain(uv: np.ndarray, layout) -> np.ndarray:
+def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
     """Map the data's extent in each bounded direction (``layout.bounded``: one with
     edges, not closed and not ending in poles) back onto [0, 1].
 
     Parameter correction lets the data drift off the domain's edges, and a projection
     on a slightly tilted plane shears them; the surface then extrapolates past the
     data and overshoots the true boundary. For an open direction, each parameter is
-    rescaled between two straight lines fitted to the data's lower and upper edges
-    (as functions of the other parameter), so the data span the domain again.
+    rescaled between two straight lines along the data's lower and upper edges (as
+    functions of the other parameter, :func:`edge_line`), so the data span the domain
+    again; the few points past a straight edge's line are put on it.
+
+    The sampling scatter of an edge is ``ALPHA`` spacings (the alpha shape's scale of a
+    sampling gap, :mod:`psonurbs.fitting.footprint`), the spacing s = sqrt(A / N) of N
+    points over the area A of their bounding box. Past an edge that is not straight
+    the points reach farther, and putting them on a line through its extremes would
+    squeeze a whole cap of the data onto the domain's edge: a bent parametrisation, in
+    which even a surface the net represents exactly in its plain parameters
+    (plate_holes' quadric over an ellipse) is no longer represented. Such an edge is
+    the data's extreme instead (the map stays affine), and the trim cuts the surface
+    back to the data. With ``support`` False every edge is a line, as before this
+    rule: the re-alignment at every round of parameter correction (``realign``) keeps
+    putting the foot points that run past an edge back on it.
     """
     out = uv.copy()
+    box = np.ptp(out, axis=0)
+    scatter = ALPHA * float(np.sqrt(max(box[0] * box[1], 0.0) / max(len(out), 1))) if support else np.inf
     for k in (0, 1):
         if not layout.bounded[k]:
             continue
@@ -45,7 +69,7 @@ def align_to_domain(uv: np.ndarray, layout) -> np.ndarray:
         if layout.closed[1 - k]:
             lo, hi = np.full(len(across), across.min()), np.full(len(across), across.max())
         else:
-            lo, hi = edge_line(along, across, False), edge_line(along, across, True)
+            lo, hi = edge_line(along, across, False, scatter), edge_line(along, across, True, scatter)
         width = hi - lo
         ok = width > 1e-9
         out[:, k] = np.clip(np.where(ok, (across - lo) / np.where(ok, width, 1.0), across), 0.0, 1.0)
@@ -122,6 +146,6 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
             uv = best_image
             continue
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        best_image = align_to_domain(new_uv, layout) if realign else new_uv
+        best_image = align_to_domain(new_uv, layout, support=False) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
     return Polished(best_control, best, best_uv, it)
