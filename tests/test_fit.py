@@ -276,18 +276,25 @@ def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_w
         assert np.array_equal(chosen, best) and test is None
 
 
-def test_validation_keeps_knots_placed_at_a_steep_step():
+def _cliff_search():
+    """A cliff across u = 0.6 (3,000 points at their true parameters, an 8 x 5 cubic net),
+    and the swarm's search over its first 1,000 points."""
     from psonurbs.fitting.hybrid import KnotWeightSearch
     from psonurbs.fitting.solve import RegularisedLeastSquares
-    from psonurbs.fitting.validation import held_out_choice
 
     rng = np.random.default_rng(5)
     uv = rng.random((3000, 2))
-    pts = np.column_stack([uv, 0.3 * np.tanh(30 * (uv[:, 0] - 0.6))])  # a cliff across u = 0.6
+    pts = np.column_stack([uv, 0.3 * np.tanh(30 * (uv[:, 0] - 0.6))])
     layout = NetLayout((8, 5), (3, 3))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
     seen = np.arange(1000)
-    search = KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+    return layout, pts, uv, seen, KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+
+
+def test_validation_keeps_knots_placed_at_a_steep_step():
+    from psonurbs.fitting.validation import held_out_choice
+
+    layout, pts, uv, seen, search = _cliff_search()
     at_step = search.classical()
     at_step[:4] = [0.35, 0.58, 0.62, 0.8]  # two of the four inner knots at the cliff
     chosen, test = held_out_choice(search, at_step, layout, pts, uv, seen, 20)
@@ -307,18 +314,12 @@ def test_validation_keeps_knots_placed_at_a_steep_step():
 
 
 def test_the_validation_finishes_the_classical_start_along_the_pipelines_smoothing_path():
-    from psonurbs.fitting.hybrid import KnotWeightSearch, loo_smoothing
+    from psonurbs.fitting.hybrid import loo_smoothing
     from psonurbs.fitting.polish import polish
-    from psonurbs.fitting.solve import RegularisedLeastSquares
     from psonurbs.fitting.validation import finished, held_out_choice
 
-    rng = np.random.default_rng(5)
-    uv = rng.random((3000, 2))
-    pts = np.column_stack([uv, 0.3 * np.tanh(30 * (uv[:, 0] - 0.6))])  # a cliff across u = 0.6
-    layout = NetLayout((8, 5), (3, 3))
-    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
-    seen = np.arange(1000)
-    search = KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+    layout, pts, uv, seen, search = _cliff_search()
+    solver = search.solver
     at_step = search.classical()
     at_step[:4] = [0.35, 0.58, 0.62, 0.8]
     _, test = held_out_choice(search, at_step, layout, pts, uv, seen, 20)
