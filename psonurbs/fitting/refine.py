@@ -195,8 +195,8 @@ class JointProblem:
             part, piece, scaled = chunk.part, chunk.piece, chunk.scaled
             moved = scaled @ d_control  # (c, 3)
             jl = q["jl"]
-            bt_d = (jl[:, 0] * moved[:, 0, None] + jl[:, 1] * moved[:, 1, None] + jl[:, 2] * moved[:, 2, None]) + np.sum(
-                (scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
+            along = jl[:, 0] * moved[:, 0, None] + jl[:, 1] * moved[:, 1, None] + jl[:, 2] * moved[:, 2, None]
+            bt_d = along + np.sum((scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
             d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
         return d_control, d_log_w, d_uv
 
