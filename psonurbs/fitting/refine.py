@@ -85,6 +85,7 @@ class JointProblem:
         n, rows, res = self.n, ev["rows"], ev["residual"]
         surface = self.layout.surface(control, weights, *self.inner)
         _, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
+        jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
         gram, g = np.zeros((4 * n, 4 * n)), np.zeros(4 * n)
         ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
         parts = []
@@ -105,15 +106,12 @@ class JointProblem:
                     gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
             g[:3 * n] += scaled.project(res[part]).ravel()
             g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
-            parts.append((part, piece, scaled, blocks, offsets))
+            t = sum(offsets[:, :, k, None] * jl[part][:, None, k, :] for k in range(3))
+            parts.append(Chunk(part, piece, scaled, blocks, t))
         penalty = np.kron(ev["regulariser"], np.eye(3))
         gram[:3 * n, :3 * n] += penalty
         g[:3 * n] += penalty @ control.ravel()
-        jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
-        chunked = [Chunk(part, piece, scaled, blocks, sum(offsets[:, :, k, None] * jl[part][:, None, k, :]
-                                                          for k in range(3)))
-                   for part, piece, scaled, blocks, offsets in parts]
-        return {"parts": chunked, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
+        return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
 
     @staticmethod
     def _point_terms(lin: dict, chunk: "Chunk", damping: float, frozen: np.ndarray | None) -> dict:
