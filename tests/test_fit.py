@@ -316,7 +316,7 @@ def test_validation_keeps_knots_placed_at_a_steep_step():
 def test_the_validation_finishes_the_classical_start_along_the_pipelines_smoothing_path():
     from psonurbs.fitting.hybrid import loo_smoothing
     from psonurbs.fitting.polish import polish
-    from psonurbs.fitting.validation import finished, held_out_choice
+    from psonurbs.fitting.validation import finished_candidate, held_out_choice
 
     layout, pts, uv, seen, search = _cliff_search()
     solver = search.solver
@@ -333,7 +333,7 @@ def test_the_validation_finishes_the_classical_start_along_the_pipelines_smoothi
     corrected = polish(layout, solver, pts[fitted], uv[fitted], shape, 10).uv
     again = solver.with_smoothing(loo_smoothing(layout, solver, pts[seen], corrected[:1000], shape))
     by_hand = polish(layout, again, pts[fitted], corrected, shape, 10).surface
-    by_finished = finished(layout, solver, pts[fitted], uv[fitted], shape, 1000, 10)
+    by_finished = finished_candidate(layout, solver, pts[fitted], uv[fitted], shape, 1000, 10)
     g = np.linspace(0.0, 1.0, 9)
     assert np.array_equal(by_finished.evaluate_grid(g, g), by_hand.evaluate_grid(g, g))
 

@@ -132,7 +132,7 @@ class Validation:
                 "kept": self.kept}
 
 
-def finished(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
+def finished_candidate(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
              shape: NetShape, n_seen: int, rounds: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
     """A candidate's surface finished as the pipeline finishes the one it keeps: polished
     at its own smoothing (``solver``'s; ``rounds`` rounds at most), the smoothing
@@ -157,7 +157,7 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
     for a sample can beat uniform ones on it and lose with all the points) and judged on
     the rest: at the first parameters (the classical start with the smoothing the
     leave-one-out error picks there: it carries the configured one, which the classical
-    fit does not end with), and finished as the pipeline finishes it (:func:`finished`)."""
+    fit does not end with), and finished as the pipeline finishes it (:func:`finished_candidate`)."""
     unseen = np.setdiff1d(np.arange(len(points)), seen)
     classical = search.classical()
     if len(unseen) < 4 or np.array_equal(best, classical):
@@ -173,8 +173,8 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
         control = search.solver.with_smoothing(at_first).solve(layout.rows(uv[fitted], *shape), points[fitted],
                                                                 c(fitted))
         first.append(np.linalg.norm(layout.rows(uv[judged], *shape) @ control - points[judged], axis=1))
-        surface = finished(layout, search.solver.with_smoothing(smoothing), points[fitted], uv[fitted], shape,
-                           len(seen), min(polish_iterations, ROUNDS), c(fitted))
+        surface = finished_candidate(layout, search.solver.with_smoothing(smoothing), points[fitted], uv[fitted],
+                                     shape, len(seen), min(polish_iterations, ROUNDS), c(fitted))
         polished.append(closest_parameters(surface, points[judged])[1])
         overshoot.append(reach(surface, cloud))
     test = Validation(paired_test(*first, c(judged)), paired_test(*polished, c(judged)), paired_test(*overshoot))
