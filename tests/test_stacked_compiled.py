@@ -14,9 +14,9 @@ from test_stacked import LAYOUTS, banded_spd, search_for
 from psonurbs.fitting.banded import band_cholesky, band_selected_inverse, band_solve
 from psonurbs.fitting.hybrid import KnotWeightSearch
 from psonurbs.fitting.solve import RegularisedLeastSquares
-from psonurbs.fitting.stacked_solve import cell_order
-from psonurbs.geometry.net import NetLayout
-from psonurbs.geometry.stacked_rows import knot_vectors, particle_cells, particle_rows, stacked_rows
+from psonurbs.fitting.stacked_solve import StackedLeastSquares, cell_order
+from psonurbs.geometry.net import NetLayout, NetShape
+from psonurbs.geometry.stacked_rows import CellLayout, knot_vectors, particle_cells, particle_rows, stacked_rows
 
 NETS = {  # more degrees and sizes: m = 16, 12, 9, 6 columns a row
     "cubic 9 x 8": NetLayout((9, 8), (3, 3)),
@@ -166,3 +166,31 @@ def test_the_fitness_in_threads_is_the_fitness_in_one(name, monkeypatch):
         monkeypatch.setenv("PSONURBS_THREADS", str(n))
         found[n] = search.compiled_fitness(swarm).tobytes()
     assert found[1] == found[2] == found[3]
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("name", list(LAYOUTS) + list(NETS))
+def test_compiled_control_points_equal_the_solvers(name, weighted):
+    """One net's least squares by the kernel (the polish's solve) against the solver's
+    numpy path: searched knots and weights, and uniform knots (None) with unit weights."""
+    search = net_search(name, False)
+    layout, cu, cv = search.layout, *search.counts
+    w = np.random.default_rng(7).uniform(0.0, 1.0, len(search.points)) if weighted else None
+    if weighted:
+        w[:20] = 0.0
+    position = search.initial_swarm(2, np.random.default_rng(8))[1]
+    shapes = [NetShape(np.exp(position[cu + cv:-1]), position[:cu], position[cu:cu + cv]),
+              NetShape(np.ones(layout.n_free))]
+    stacked = StackedLeastSquares(search.solver, CellLayout(layout))
+    for shape in shapes:
+        expected = search.solver.solve(layout.rows(search.uv, *shape), search.points, w)
+        got = stacked.compiled_control(search.uv, shape, search.points, w)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+    assert np.abs(got - stacked.compiled_control(search.uv, shapes[0], search.points, w)).max() > 1e-3
+
+
+def test_compiled_control_refuses_a_matrix_that_is_not_positive_definite():
+    search = net_search("open", False)
+    stacked = StackedLeastSquares(search.solver.with_smoothing(-1e3), CellLayout(search.layout))
+    with pytest.raises(np.linalg.LinAlgError):
+        stacked.compiled_control(search.uv, NetShape(np.ones(search.layout.n_free)), search.points)

@@ -13,6 +13,7 @@ from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 from .footprint import ALPHA
 from .solve import weighted_rms
+from .stacked_solve import least_squares_at
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = 8) -> np.ndarray:
@@ -133,9 +134,9 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
     uv = best_image = align_to_domain(uv, layout) if align or realign else uv
-    mixer = AndersonMixing(layout.closed)
+    mixer, fit = AndersonMixing(layout.closed), least_squares_at(layout, solver)
     for it in range(iterations + 1):
-        control = solver.solve(layout.rows(uv, *shape), points, point_weights)
+        control = fit(uv, shape, points, point_weights)
         surface = layout.surface(control, *shape)
         new_uv, dist = closest_parameters(surface, points, uv)
         new_rmse = weighted_rms(dist ** 2, point_weights)

@@ -18,16 +18,22 @@ leverages read the blocks of M^-1 at each cell's columns from its selected inver
 
 :func:`particle_errors` is the compiled twin (numba, :mod:`psonurbs.geometry.compiled`)
 of the same computation, one particle at a time in a loop instead of numpy's passes over
-padded (chunks, slots, m) arrays: about 3 x faster, the same numbers to rounding.
+padded (chunks, slots, m) arrays: about 3 x faster, the same numbers to rounding. Its
+normal equations (:func:`normal_equations`) also solve a single net at given parameters
+(:func:`least_squares_at`, the polish's solve in every round): some 10 x faster than
+building the rows through scipy and summing their Gram blocks.
 """
 from __future__ import annotations
 
 from functools import cached_property, lru_cache
+from typing import Callable
 
 import numpy as np
 
 from psonurbs.geometry import compiled
+from psonurbs.geometry.basis import uniform_inner_knots
 from psonurbs.geometry.compiled import kernel
+from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.stacked_rows import LANES, CellLayout, StackedRows, knot_vectors, particle_cells, particle_rows
 
 from .banded import BandOrder, StackedBandedCholesky, band_cholesky, band_selected_inverse, band_solve
@@ -67,12 +73,10 @@ class StackedLeastSquares:
         return (np.concatenate(entries or [np.zeros((0, 3), np.int64)]).astype(np.int64),
                 np.concatenate(values or [np.zeros(0)]).astype(float))
 
-    def compiled_errors(self, uv: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
-                        data: np.ndarray, smoothing: np.ndarray, cross_validation: bool,
-                        point_weights: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`errors` of the rows ``stacked_rows(self.cells, uv, weights, inner_u, inner_v)``
-        by the compiled kernel (:func:`particle_errors`), particle by particle: (P,), inf
-        for a particle whose normal matrix is not positive definite."""
+    def _kernel_inputs(self, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray, smoothing: np.ndarray,
+                       uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray | None) -> dict:
+        """The arguments :func:`particle_errors` and :func:`particle_control` share, as
+        contiguous arrays: P particles' full knot vectors, weights and regulariser scales."""
         layout = self.cells.layout
         knots = [np.ascontiguousarray(knot_vectors(n, d, c, inner)) for n, d, c, inner in
                  zip(layout.size, layout.degrees, layout.closed, (inner_u, inner_v))]
@@ -83,20 +87,46 @@ class StackedLeastSquares:
                                  or [np.zeros(len(smoothing))])
         entries, values = self._upper_terms
         point_weights = np.ones(len(data)) if point_weights is None else np.asarray(point_weights, float)
-        uv, data, point_weights = (np.ascontiguousarray(a, float) for a in (uv, data, point_weights))
-        weights, scales = np.ascontiguousarray(weights, float), np.ascontiguousarray(scales)
-        degrees, cell_columns = np.asarray(layout.degrees, np.int64), self.cells.columns.astype(np.int64)
-        band_columns = self.columns.astype(np.int64)
+        return dict(uv=np.ascontiguousarray(uv, float), data=np.ascontiguousarray(data, float),
+                    point_weights=np.ascontiguousarray(point_weights, float), knots_u=knots[0], knots_v=knots[1],
+                    weights=np.ascontiguousarray(weights, float), degrees=np.asarray(layout.degrees, np.int64),
+                    cells_v=self.cells.shape[1], free_columns=self.cells.columns.astype(np.int64),
+                    band_columns=self.columns.astype(np.int64), half_bandwidth=self.order.half_bandwidth,
+                    term_entries=entries, term_values=values, term_scales=np.ascontiguousarray(scales))
+
+    def compiled_errors(self, uv: np.ndarray, weights: np.ndarray, inner_u: np.ndarray, inner_v: np.ndarray,
+                        data: np.ndarray, smoothing: np.ndarray, cross_validation: bool,
+                        point_weights: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`errors` of the rows ``stacked_rows(self.cells, uv, weights, inner_u, inner_v)``
+        by the compiled kernel (:func:`particle_errors`), particle by particle: (P,), inf
+        for a particle whose normal matrix is not positive definite."""
+        given = self._kernel_inputs(weights, inner_u, inner_v, smoothing, uv, data, point_weights)
+        per_particle = ("knots_u", "knots_v", "weights", "term_scales")
         out = np.empty(len(weights))
 
         def evaluate(part: slice) -> None:  # particles are independent: a part's errors are its own
-            out[part] = particle_errors(uv, data, point_weights, knots[0][part], knots[1][part], weights[part],
-                                        degrees, self.cells.shape[1], cell_columns, band_columns,
-                                        self.order.half_bandwidth, entries, values, scales[part],
-                                        bool(cross_validation))
+            out[part] = particle_errors(**{**given, **{key: given[key][part] for key in per_particle}},
+                                        cross_validation=bool(cross_validation))
 
         compiled.over_parts(len(weights), evaluate)
         return out
+
+    def compiled_control(self, uv: np.ndarray, shape: NetShape, data: np.ndarray,
+                         point_weights: np.ndarray | None = None) -> np.ndarray:
+        """The free control points (n, dim) of one net ``shape`` (weights, inner knots or
+        None for uniform) at the parameters uv (N, 2): the solver's
+        ``solve(layout.rows(uv, *shape), data, point_weights)`` by the compiled kernel
+        (:func:`particle_control`), the same numbers to rounding. Raises LinAlgError if
+        the normal matrix is not positive definite."""
+        inner = [uniform_inner_knots(count) if knots is None else knots
+                 for count, knots in zip(self.cells.layout.inner_counts, (shape.inner_u, shape.inner_v))]
+        given = self._kernel_inputs(np.asarray(shape.weights, float)[None], inner[0], inner[1],
+                                    np.array([self.solver.smoothing]), uv, data, point_weights)
+        control = np.empty((self.n, np.shape(data)[1]))
+        if not particle_control(**{**given, "term_scales": given["term_scales"][0], "knots_u": given["knots_u"][0],
+                                   "knots_v": given["knots_v"][0], "weights": given["weights"][0]}, control=control):
+            raise np.linalg.LinAlgError("the normal matrix is not positive definite")
+        return control[self.order.position]
 
     def _entries(self, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         r, c = np.nonzero(matrix)
@@ -189,6 +219,99 @@ def cell_order(cell_of: np.ndarray, first: np.ndarray, order: np.ndarray) -> Non
 
 
 @kernel
+def normal_equations(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray, knots_u: np.ndarray,
+                     knots_v: np.ndarray, weights: np.ndarray, degrees: np.ndarray, cells_v: int,
+                     free_columns: np.ndarray, band_columns: np.ndarray, term_entries: np.ndarray,
+                     term_values: np.ndarray, term_scales: np.ndarray, cell_of: np.ndarray, first: np.ndarray,
+                     order: np.ndarray, augmented: np.ndarray, sorted_weights: np.ndarray, block: np.ndarray,
+                     band: np.ndarray, control: np.ndarray) -> None:
+    """One particle's normal equations ``M P = R^T W X`` in the upper band (band order):
+    ``band`` (n, w + 1) holds M, ``control`` (n, dim) the right-hand side.
+
+    The particle has full knot vectors ``knots_u``, ``knots_v`` and free ``weights``
+    (:func:`particle_rows`); its points sorted by cell (:func:`cell_order`: ``first``,
+    ``order``), each cell adds its m x m Gram block and its right-hand side at
+    ``band_columns[cell]``; the regulariser is ``term_values[e] * term_scales[term] * t``
+    at the upper entries ``term_entries[e] = (row, column, term)``, then the ridge
+    (:meth:`StackedLeastSquares.normal_matrices`). The work arrays are the caller's:
+    ``augmented`` (N, width) holds each sorted point's [row (m), point (dim), 0 ...]
+    afterwards, ``sorted_weights`` (N,) its weight, ``cell_of`` (N,), ``block`` (m, width)."""
+    n_points, dim = uv.shape[0], data.shape[1]
+    n_cells, m = band_columns.shape[0], band_columns.shape[1]
+    n, width = band.shape[0], augmented.shape[1]
+    particle_cells(uv, knots_u, knots_v, degrees, cells_v, cell_of)
+    cell_order(cell_of, first, order)
+    particle_rows(uv, knots_u, knots_v, degrees, cells_v, weights, free_columns, first, order, augmented)
+    for s in range(n_points):
+        i = order[s]
+        sorted_weights[s] = point_weights[i]
+        for d in range(dim):
+            augmented[s, m + d] = data[i, d]
+    band[:] = 0.0
+    control[:] = 0.0
+    for c in range(n_cells):  # the Gram blocks and right-hand sides: sum of w r [r, x]
+        if first[c] == first[c + 1]:
+            continue
+        block[:] = 0.0
+        start, end = first[c], first[c + 1]
+        while start + 4 <= end:  # four points a pass: a quarter of the loads and stores of block
+            s = start
+            r0, r1, r2, r3 = augmented[s], augmented[s + 1], augmented[s + 2], augmented[s + 3]
+            w0, w1, w2, w3 = sorted_weights[s], sorted_weights[s + 1], sorted_weights[s + 2], sorted_weights[s + 3]
+            for a in range(m):
+                x0, x1, x2, x3, gram = r0[a] * w0, r1[a] * w1, r2[a] * w2, r3[a] * w3, block[a]
+                for b in range(width):  # (1-d rows, loops from 0 over whole LANES: numba vectorises)
+                    gram[b] += ((x0 * r0[b] + x1 * r1[b]) + x2 * r2[b]) + x3 * r3[b]
+            start += 4
+        for s in range(start, end):
+            row = augmented[s]
+            for a in range(m):
+                ra, gram = row[a] * sorted_weights[s], block[a]
+                for b in range(width):
+                    gram[b] += ra * row[b]
+        for a in range(m):
+            ca = band_columns[c, a]
+            for b in range(m):
+                cb = band_columns[c, b]
+                if cb >= ca:
+                    band[ca, cb - ca] += block[a, b]
+            for d in range(dim):
+                control[ca, d] += block[a, m + d]
+    trace = 0.0
+    for j in range(n):
+        trace += band[j, 0]
+    for e in range(term_values.shape[0]):
+        r, c = term_entries[e, 0], term_entries[e, 1]
+        band[r, c - r] += term_scales[term_entries[e, 2]] * trace * term_values[e]
+    for j in range(n):
+        band[j, 0] += RIDGE * trace / n
+
+
+@kernel
+def particle_control(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray, knots_u: np.ndarray,
+                     knots_v: np.ndarray, weights: np.ndarray, degrees: np.ndarray, cells_v: int,
+                     free_columns: np.ndarray, band_columns: np.ndarray, half_bandwidth: int,
+                     term_entries: np.ndarray, term_values: np.ndarray, term_scales: np.ndarray,
+                     control: np.ndarray) -> bool:
+    """One particle's control points ``control`` (n, dim) in band order (the weighted,
+    regularised least squares of :func:`normal_equations`); False where M is not
+    positive definite."""
+    n_points, dim = uv.shape[0], data.shape[1]
+    n_cells, m = band_columns.shape[0], band_columns.shape[1]
+    n, width = control.shape[0], -(-(m + dim) // LANES) * LANES
+    cell_of, order, first = np.empty(n_points, np.int64), np.empty(n_points, np.int64), np.empty(n_cells + 1, np.int64)
+    augmented, sorted_weights = np.zeros((n_points, width)), np.empty(n_points)
+    block, band = np.empty((m, width)), np.empty((n, half_bandwidth + 1))
+    normal_equations(uv, data, point_weights, knots_u, knots_v, weights, degrees, cells_v, free_columns, band_columns,
+                     term_entries, term_values, term_scales, cell_of, first, order, augmented, sorted_weights, block,
+                     band, control)
+    if not band_cholesky(band):
+        return False
+    band_solve(band, control)
+    return True
+
+
+@kernel
 def particle_errors(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray, knots_u: np.ndarray,
                     knots_v: np.ndarray, weights: np.ndarray, degrees: np.ndarray, cells_v: int,
                     free_columns: np.ndarray, band_columns: np.ndarray, half_bandwidth: int,
@@ -197,13 +320,10 @@ def particle_errors(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray,
     """The compiled twin of :meth:`StackedLeastSquares.errors` after :func:`stacked_rows`,
     one particle at a time: (P,) errors, inf where M_k is not positive definite.
 
-    Particle k has full knot vectors ``knots_u[k]``, ``knots_v[k]`` and free ``weights[k]``
-    (:func:`particle_rows`); its points sorted by cell (:func:`cell_order`), each cell adds
-    its m x m Gram block and its right-hand side at ``band_columns[cell]`` of the upper
-    band; the regulariser is ``term_values[e] * term_scales[k, term] * t_k`` at the upper
-    entries ``term_entries[e] = (row, column, term)``, then the ridge (:meth:`normal_matrices`);
-    the leverages read each cell's m x m block of the selected inverse. ``point_weights``
-    are ones for the unweighted fitness (the same numbers)."""
+    Particle k's normal equations come from :func:`normal_equations` (its knots
+    ``knots_u[k]``, ``knots_v[k]``, weights ``weights[k]``, regulariser scales
+    ``term_scales[k]``); the leverages read each cell's m x m block of the selected
+    inverse. ``point_weights`` are ones for the unweighted fitness (the same numbers)."""
     n_particles, n_points, dim = weights.shape[0], uv.shape[0], data.shape[1]
     n_cells, m = band_columns.shape[0], band_columns.shape[1]
     n, width = band_columns.max() + 1, -(-(m + dim) // LANES) * LANES
@@ -219,53 +339,9 @@ def particle_errors(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray,
         total_weight += point_weights[i]
     out = np.empty(n_particles)
     for k in range(n_particles):
-        particle_cells(uv, knots_u[k], knots_v[k], degrees, cells_v, cell_of)
-        cell_order(cell_of, first, order)
-        particle_rows(uv, knots_u[k], knots_v[k], degrees, cells_v, weights[k], free_columns, first, order,
-                      augmented)
-        for s in range(n_points):
-            i = order[s]
-            sorted_weights[s] = point_weights[i]
-            for d in range(dim):
-                augmented[s, m + d] = data[i, d]
-        band[:] = 0.0
-        control[:] = 0.0
-        for c in range(n_cells):  # the Gram blocks and right-hand sides: sum of w r [r, x]
-            if first[c] == first[c + 1]:
-                continue
-            block[:] = 0.0
-            start, end = first[c], first[c + 1]
-            while start + 4 <= end:  # four points a pass: a quarter of the loads and stores of block
-                s = start
-                r0, r1, r2, r3 = augmented[s], augmented[s + 1], augmented[s + 2], augmented[s + 3]
-                w0, w1, w2, w3 = sorted_weights[s], sorted_weights[s + 1], sorted_weights[s + 2], sorted_weights[s + 3]
-                for a in range(m):
-                    x0, x1, x2, x3, gram = r0[a] * w0, r1[a] * w1, r2[a] * w2, r3[a] * w3, block[a]
-                    for b in range(width):  # (1-d rows, loops from 0 over whole LANES: numba vectorises)
-                        gram[b] += ((x0 * r0[b] + x1 * r1[b]) + x2 * r2[b]) + x3 * r3[b]
-                start += 4
-            for s in range(start, end):
-                row = augmented[s]
-                for a in range(m):
-                    ra, gram = row[a] * sorted_weights[s], block[a]
-                    for b in range(width):
-                        gram[b] += ra * row[b]
-            for a in range(m):
-                ca = band_columns[c, a]
-                for b in range(m):
-                    cb = band_columns[c, b]
-                    if cb >= ca:
-                        band[ca, cb - ca] += block[a, b]
-                for d in range(dim):
-                    control[ca, d] += block[a, m + d]
-        trace = 0.0
-        for j in range(n):
-            trace += band[j, 0]
-        for e in range(term_values.shape[0]):
-            r, c = term_entries[e, 0], term_entries[e, 1]
-            band[r, c - r] += term_scales[k, term_entries[e, 2]] * trace * term_values[e]
-        for j in range(n):
-            band[j, 0] += RIDGE * trace / n
+        normal_equations(uv, data, point_weights, knots_u[k], knots_v[k], weights[k], degrees, cells_v, free_columns,
+                         band_columns, term_entries, term_values, term_scales[k], cell_of, first, order, augmented,
+                         sorted_weights, block, band, control)
         if not band_cholesky(band):
             out[k] = np.inf
             continue
@@ -312,3 +388,15 @@ def particle_errors(uv: np.ndarray, data: np.ndarray, point_weights: np.ndarray,
                 squares += norm * sorted_weights[s]
         out[k] = np.sqrt(squares / total_weight) if total_weight > 0.0 else np.nan
     return out
+
+
+def least_squares_at(layout: NetLayout, solver: RegularisedLeastSquares
+                     ) -> Callable[[np.ndarray, NetShape, np.ndarray, np.ndarray | None], np.ndarray]:
+    """``fit(uv, shape, points, point_weights)``: the free control points of ``solver``'s
+    problem for one net of ``layout`` at the parameters uv, as
+    ``solver.solve(layout.rows(uv, *shape), points, point_weights)`` computes them; by
+    the compiled kernel (:meth:`StackedLeastSquares.compiled_control`, some 10 x faster)
+    where :data:`psonurbs.geometry.compiled.ENABLED`."""
+    if compiled.ENABLED:
+        return StackedLeastSquares(solver, CellLayout(layout)).compiled_control
+    return lambda uv, shape, points, point_weights=None: solver.solve(layout.rows(uv, *shape), points, point_weights)
