@@ -79,9 +79,12 @@ def compiled_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarr
     weighted_net = (surface.control_points * surface.weights[..., None]).reshape(-1, 3)
     weights = np.ascontiguousarray(surface.weights.reshape(-1))
     points, uv = np.ascontiguousarray(points, float), np.ascontiguousarray(uv, float)
+    inverse_u = foot_kernel.inverse_gaps(surface.knots_u, int(surface.degree_u))
+    inverse_v = foot_kernel.inverse_gaps(surface.knots_v, int(surface.degree_v))
 
     def search(part: slice) -> None:
-        foot_kernel.foot_points(surface.knots_u, surface.knots_v, int(surface.degree_u), int(surface.degree_v),
+        foot_kernel.foot_points(surface.knots_u, surface.knots_v, inverse_u, inverse_v,
+                                int(surface.degree_u), int(surface.degree_v),
                                 int(surface.shape[1]), weighted_net, weights, bool(closed[0]), bool(closed[1]),
                                 points[part], uv[part], int(iterations), LINE_SEARCH_HALVINGS, PARAMETER_TOLERANCE,
                                 out_uv[part], out_dist[part])
