@@ -178,3 +178,23 @@ def test_foot_points_of_points_that_stopped_moving_are_not_searched_again(monkey
     stepped.clear()
     projection.closest_parameters(surface, points, start)
     assert stepped[0] == 200 and max(stepped[1:]) <= 10 + still
+
+
+def test_refinement_step_in_threads_gives_the_bytes_of_one(monkeypatch):
+    """The chunks' sums are formed in threads (compiled.in_order) and added in chunk
+    order: 1, 2 and 3 threads give the same bytes."""
+    layout = NetLayout((5, 4), (3, 2))
+    rng = np.random.default_rng(8)
+    uv = skewed_parameters(90, 9)
+    points = np.c_[uv, 0.2 * np.sin(3 * uv[:, 0])] + 0.01 * rng.normal(size=(90, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-3)
+    weights = rng.uniform(0.7, 1.4, layout.n_free)
+    control = solver.solve(layout.rows(uv, weights), points)
+    monkeypatch.setattr(refine, "REFINE_CHUNK", 13)  # 7 chunks
+    found = []
+    for n in (1, 2, 3):
+        monkeypatch.setenv("PSONURBS_THREADS", str(n))
+        problem = refine.JointProblem(layout, solver, points, None, None)
+        lin = problem.linearise(control, weights, uv, problem.evaluate(control, weights, uv))
+        found.append(b"".join(a.tobytes() for a in (lin["gram"], lin["g"], *problem.step(lin, 1e-3))))
+    assert found[0] == found[1] == found[2]

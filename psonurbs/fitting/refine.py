@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg as la
 
+from psonurbs.geometry import compiled
 from psonurbs.geometry.chunks import chunks
 from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.projection import keep_in_domain
@@ -43,7 +44,7 @@ from psonurbs.geometry.rows import Rows
 
 from .solve import RegularisedLeastSquares
 
-REFINE_CHUNK = 1 << 14  # points whose Jacobian blocks are formed together: some 40 MB at m = 16
+REFINE_CHUNK = 1 << 13  # points whose Jacobian blocks are formed together (some 20 MB at m = 16), a thread's share
 
 
 class Chunk(NamedTuple):
@@ -81,37 +82,48 @@ class JointProblem:
         """The parts of the normal equations that do not depend on the damping:
         ``J_net^T J_net`` (with the regulariser) and ``J_net^T r``, summed over chunks of
         points from per-point arrays of m values (the structure of J_net above: the
-        rows v and ``v_c (P_c - S_i)``), and every point's ``J_l = [S_u S_v]`` (N, 3, 2)."""
+        rows v and ``v_c (P_c - S_i)``), and every point's ``J_l = [S_u S_v]`` (N, 3, 2).
+        The chunks run in threads (:func:`compiled.in_order`), their sums added in order."""
         n, rows, res = self.n, ev["rows"], ev["residual"]
         surface = self.layout.surface(control, weights, *self.inner)
         _, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
         jl = self.root[:, None, None] * np.stack([su, sv], axis=2)
-        gram, g = np.zeros((4 * n, 4 * n)), np.zeros(4 * n)
-        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
-        parts = []
-        for part in chunks(len(res), REFINE_CHUNK):
-            piece = rows.take(part)
-            scaled = piece.scaled(self.root[part])  # the rows of the weighted problem, sqrt(c_i) R
-            blocks = piece.blocks()
-            offsets = control[piece.columns] - (piece @ control)[:, None, :]  # P_c - S_i, (c, m, 3)
-            vs = scaled.values[:, :, None] * offsets
-            for batch in blocks.batches:
-                v, vs_b = blocks.pad(scaled.values, batch), blocks.pad(vs, batch)
-                plain = blocks.place(np.matmul(v.transpose(0, 2, 1), v), batch)
-                for k in range(3):
-                    gram[ctrl[k], ctrl[k]] += plain
-                    cross = blocks.place(np.matmul(v.transpose(0, 2, 1), vs_b[..., k]), batch)
-                    gram[ctrl[k], wts] += cross
-                    gram[wts, ctrl[k]] += cross.T
-                    gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
-            g[:3 * n] += scaled.project(res[part]).ravel()
-            g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
-            t = sum(offsets[:, :, k, None] * jl[part][:, None, k, :] for k in range(3))
-            parts.append(Chunk(part, piece, scaled, blocks, t))
+        gram, g, parts = np.zeros((4 * n, 4 * n)), np.zeros(4 * n), []
+        terms = compiled.in_order(lambda part: self._chunk_normal_equations(part, rows, control, res, jl),
+                                  chunks(len(res), REFINE_CHUNK))
+        for chunk_gram, chunk_g, chunk in terms:
+            gram += chunk_gram
+            g += chunk_g
+            parts.append(chunk)
         penalty = np.kron(ev["regulariser"], np.eye(3))
         gram[:3 * n, :3 * n] += penalty
         g[:3 * n] += penalty @ control.ravel()
         return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
+
+    def _chunk_normal_equations(self, part: slice, rows: Rows, control: np.ndarray, res: np.ndarray,
+                                jl: np.ndarray) -> tuple[np.ndarray, np.ndarray, Chunk]:
+        """One chunk's ``J_net^T J_net`` (4n, 4n) and ``J_net^T r`` (4n,), and its :class:`Chunk`."""
+        n = self.n
+        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
+        gram, g = np.zeros((4 * n, 4 * n)), np.zeros(4 * n)
+        piece = rows.take(part)
+        scaled = piece.scaled(self.root[part])  # the rows of the weighted problem, sqrt(c_i) R
+        blocks = piece.blocks()
+        offsets = control[piece.columns] - (piece @ control)[:, None, :]  # P_c - S_i, (c, m, 3)
+        vs = scaled.values[:, :, None] * offsets
+        for batch in blocks.batches:
+            v, vs_b = blocks.pad(scaled.values, batch), blocks.pad(vs, batch)
+            plain = blocks.place(np.matmul(v.transpose(0, 2, 1), v), batch)
+            for k in range(3):
+                gram[ctrl[k], ctrl[k]] += plain
+                cross = blocks.place(np.matmul(v.transpose(0, 2, 1), vs_b[..., k]), batch)
+                gram[ctrl[k], wts] += cross
+                gram[wts, ctrl[k]] += cross.T
+                gram[wts, wts] += blocks.place(np.matmul(vs_b[..., k].transpose(0, 2, 1), vs_b[..., k]), batch)
+        g[:3 * n] += scaled.project(res[part]).ravel()
+        g[wts] += np.bincount(piece.columns.ravel(), np.sum(vs * res[part][:, None, :], axis=2).ravel(), n)
+        t = sum(offsets[:, :, k, None] * jl[part][:, None, k, :] for k in range(3))
+        return gram, g, Chunk(part, piece, scaled, blocks, t)
 
     @staticmethod
     def _point_terms(lin: dict, chunk: "Chunk", damping: float, frozen: np.ndarray | None) -> dict:
@@ -143,7 +155,7 @@ class JointProblem:
     def step(self, lin: dict, damping: float, frozen: np.ndarray | None = None):
         """The damped Gauss-Newton step (d_control, d_log_weights, d_uv); parameters
         marked ``frozen`` (N, 2) stay where they are. The 2 x 2 blocks are inverted
-        in closed form.
+        in closed form; the chunks run in threads, their sums added in order.
 
         With ``B_i L_i^-T = [y0 y1]`` (C_i = L_i L_i^T) the Schur complement subtracts
         ``sum_i y0 y0^T + y1 y1^T``. On control point c, coordinate k, y_e is
@@ -151,40 +163,12 @@ class JointProblem:
         so its blocks are cross Grams of per-point arrays of m values, a chunk at a time.
         """
         n = self.n
-        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
-        schur, rhs = lin["gram"].copy(), -lin["g"]
-        terms = []
-        for chunk in lin["parts"]:
-            part, piece, scaled, blocks = chunk.part, chunk.piece, chunk.scaled, chunk.blocks
-            q = self._point_terms(lin, chunk, damping, frozen)
+        schur, rhs, terms = lin["gram"].copy(), -lin["g"], []
+        for reduction, rhs_part, q in compiled.in_order(lambda chunk: self._chunk_schur(lin, chunk, damping, frozen),
+                                                        lin["parts"]):
+            schur -= reduction
+            rhs += rhs_part
             terms.append(q)
-            v, jl, t, l11, l22, ratio = scaled.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
-            a = np.stack([jl[:, :, 0] / l11[:, None], (jl[:, :, 1] - jl[:, :, 0] * ratio[:, None]) / l22[:, None]],
-                         axis=2)  # (c, 3, 2): a_ek
-            z = v[:, :, None] * np.stack([t[:, :, 0] / l11[:, None],
-                                          (t[:, :, 1] - t[:, :, 0] * ratio[:, None]) / l22[:, None]], axis=2)
-            for batch in blocks.batches:
-                vb, ab, zb = blocks.pad(v, batch), blocks.pad(a, batch), blocks.pad(z, batch)
-                vt = vb.transpose(0, 2, 1)
-                for k in range(3):
-                    for j in range(k, 3):
-                        scale = (ab[:, :, k, 0] * ab[:, :, j, 0] + ab[:, :, k, 1] * ab[:, :, j, 1])[:, :, None]
-                        block = blocks.place(np.matmul(vt, scale * vb), batch)
-                        schur[ctrl[k], ctrl[j]] -= block
-                        if j != k:
-                            schur[ctrl[j], ctrl[k]] -= block.T
-                    # sum over e of a_ek z_ec, written out: a reduction over a last axis of 2 is slow
-                    mixed = ab[:, :, k, None, 0] * zb[..., 0] + ab[:, :, k, None, 1] * zb[..., 1]
-                    cross = blocks.place(np.matmul(vt, mixed), batch)
-                    schur[ctrl[k], wts] -= cross
-                    schur[wts, ctrl[k]] -= cross.T
-                schur[wts, wts] -= sum(blocks.place(np.matmul(zb[..., e].transpose(0, 2, 1), zb[..., e]), batch)
-                                       for e in range(2))
-            w_vec = self._c_inverse(q, q["c_vec"])
-            # sums over a last axis of 2 written out (numpy's reduction over it is slow)
-            rhs[:3 * n] += scaled.project(jl[..., 0] * w_vec[:, None, 0] + jl[..., 1] * w_vec[:, None, 1]).ravel()
-            rhs[wts] += np.bincount(piece.columns.ravel(),
-                                    (v * (t[..., 0] * w_vec[:, None, 0] + t[..., 1] * w_vec[:, None, 1])).ravel(), n)
         schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
         d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
         d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
@@ -197,6 +181,44 @@ class JointProblem:
             bt_d = along + np.sum((scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
             d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
         return d_control, d_log_w, d_uv
+
+    def _chunk_schur(self, lin: dict, chunk: Chunk, damping: float, frozen: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray, dict]:
+        """One chunk's ``sum_i B_i C_i^-1 B_i^T`` (4n, 4n), its ``sum_i B_i C_i^-1 c_i``
+        (4n,) and its point terms (:meth:`_point_terms`)."""
+        n = self.n
+        ctrl, wts = [slice(k, 3 * n, 3) for k in range(3)], slice(3 * n, 4 * n)
+        reduction, rhs = np.zeros((4 * n, 4 * n)), np.zeros(4 * n)
+        piece, scaled, blocks = chunk.piece, chunk.scaled, chunk.blocks
+        q = self._point_terms(lin, chunk, damping, frozen)
+        v, jl, t, l11, l22, ratio = scaled.values, q["jl"], q["t"], q["l11"], q["l22"], q["l21"] / q["l11"]
+        a = np.stack([jl[:, :, 0] / l11[:, None], (jl[:, :, 1] - jl[:, :, 0] * ratio[:, None]) / l22[:, None]],
+                     axis=2)  # (c, 3, 2): a_ek
+        z = v[:, :, None] * np.stack([t[:, :, 0] / l11[:, None],
+                                      (t[:, :, 1] - t[:, :, 0] * ratio[:, None]) / l22[:, None]], axis=2)
+        for batch in blocks.batches:
+            vb, ab, zb = blocks.pad(v, batch), blocks.pad(a, batch), blocks.pad(z, batch)
+            vt = vb.transpose(0, 2, 1)
+            for k in range(3):
+                for j in range(k, 3):
+                    scale = (ab[:, :, k, 0] * ab[:, :, j, 0] + ab[:, :, k, 1] * ab[:, :, j, 1])[:, :, None]
+                    block = blocks.place(np.matmul(vt, scale * vb), batch)
+                    reduction[ctrl[k], ctrl[j]] += block
+                    if j != k:
+                        reduction[ctrl[j], ctrl[k]] += block.T
+                # sum over e of a_ek z_ec, written out: a reduction over a last axis of 2 is slow
+                mixed = ab[:, :, k, None, 0] * zb[..., 0] + ab[:, :, k, None, 1] * zb[..., 1]
+                cross = blocks.place(np.matmul(vt, mixed), batch)
+                reduction[ctrl[k], wts] += cross
+                reduction[wts, ctrl[k]] += cross.T
+            reduction[wts, wts] += sum(blocks.place(np.matmul(zb[..., e].transpose(0, 2, 1), zb[..., e]), batch)
+                                       for e in range(2))
+        w_vec = self._c_inverse(q, q["c_vec"])
+        # sums over a last axis of 2 written out (numpy's reduction over it is slow)
+        rhs[:3 * n] += scaled.project(jl[..., 0] * w_vec[:, None, 0] + jl[..., 1] * w_vec[:, None, 1]).ravel()
+        rhs[wts] += np.bincount(piece.columns.ravel(),
+                                (v * (t[..., 0] * w_vec[:, None, 0] + t[..., 1] * w_vec[:, None, 1])).ravel(), n)
+        return reduction, rhs, q
 
 
 class Refined(NamedTuple):

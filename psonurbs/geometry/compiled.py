@@ -19,7 +19,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
-from typing import Callable
+from typing import Callable, Iterable, Iterator, TypeVar
 
 try:
     if os.environ.get("PSONURBS_NO_JIT", "") not in ("", "0"):
@@ -59,6 +59,21 @@ def threads() -> int:
 @lru_cache(maxsize=4)
 def _pool(size: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=size, thread_name_prefix="psonurbs-kernel")
+
+
+Item, Result = TypeVar("Item"), TypeVar("Result")
+
+
+def in_order(function: Callable[[Item], Result], items: Iterable[Item]) -> Iterator[Result]:
+    """``function(item)`` for each item, up to :func:`threads` at once, yielded in the
+    items' order: for numpy work on fixed chunks (numpy releases the GIL inside its
+    loops). A caller that sums the results in that order gets the same bits whatever the
+    number of threads."""
+    items = list(items)
+    if threads() <= 1 or len(items) <= 1:
+        yield from map(function, items)
+        return
+    yield from _pool(min(threads(), len(items))).map(function, items)
 
 
 def over_parts(count: int, run: Callable[[slice], None], smallest: int = 1) -> None:
