@@ -180,3 +180,25 @@ def test_a_face_that_holds_few_of_the_points_is_not_their_footprint():
     assert face.trim is None and face.loops == 0
     kept = fit_footprint(np.vstack([spread, cluster[:100]]), mode=True)
     assert kept.trim is not None and kept.fragment_points == 100
+
+
+def stretched_at_the_end() -> NurbsSurface:
+    """A flat sheet whose last knot span along u runs out to x = 6: the domain's last few
+    hundredths of u are most of the surface (a strip of stretched surface past the data,
+    as a fit's edge row of control points far out leaves it)."""
+    nu, nv = 7, 4
+    x = np.array([0.0, 0.33, 0.67, 1.0, 1.33, 1.67, 6.0])
+    cp = np.stack(np.broadcast_arrays(x[:, None], np.linspace(0, 1.5, nv)[None, :], 0.0), axis=-1)
+    return NurbsSurface(3, 3, clamped_knots(nu, 3), clamped_knots(nv, 3), cp.astype(float), np.ones((nu, nv)))
+
+
+def test_a_strip_of_surface_past_the_data_is_trimmed_however_thin_in_the_domain():
+    """The gap is measured on the surface, not in the domain: data on u < 0.9 leave a
+    sliver of the domain empty (narrower than the alpha scale at the mean speed) that is
+    a band of surface several units wide."""
+    surface = stretched_at_the_end()
+    near = sample(lambda u, v: u < 0.9, 3000, seed=4)
+    face = fit_footprint(near, surface=surface)
+    assert face.trim is not None and face.loops == 1
+    assert face.points_outside <= 3  # at most a few hull points whose triangles are all slivers
+    assert face.empty_share > 0.5  # the band from u = 0.9 to 1 is most of the surface

@@ -33,9 +33,11 @@ distances are still those of every point.
 
 A face that holds fewer than half of the points (a fit far from the data, pieces of
 the cloud spread over the domain) is not the data's footprint: the surface is left
-untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap in the
-domain: an empty disc of radius at least ``ALPHA`` median spacings (as wide as the gaps the
-alpha shape opens; a cloud that fills its rectangle leaves only sampling gaps along the
+untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap
+on the surface: an empty disc on the surface outside the face of radius at least ``ALPHA``
+median spacings (as wide as the gaps the alpha shape opens; measured on the surface,
+:func:`widest_gap`, so a strip of stretched surface past the data counts however thin it
+is in the domain; a cloud that fills its rectangle leaves only sampling gaps along the
 edges); ``true`` always; ``false`` never.
 """
 from __future__ import annotations
@@ -74,6 +76,7 @@ MAX_RASTER = 1500  # cells along the longer side of the footprint's raster
 AREA_GRID = 201  # surface area elements for the empty share
 FOOTPRINT_POINTS = 20_000  # a bigger footprint is drawn from a subsample of this many points...
 FOOTPRINT_SEED = 14  # ... a fixed one
+GAP_SAMPLES = 40_000  # surface samples outside the face that measure its widest gap
 
 
 @dataclass(frozen=True)
@@ -181,7 +184,7 @@ class Contours:
     fragment_points: int
     spacing: float  # median spacing, surface length units
     tolerance: np.ndarray  # (2,) half the margin, in u and v
-    empty_radius: float  # radius of the widest empty disc in the domain outside the face
+    widest_gap: float  # the widest gap on the surface outside the face, in median spacings of the points
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
@@ -189,7 +192,8 @@ class Contours:
         return np.maximum(np.concatenate([-p.min(axis=0), p.max(axis=0) - 1.0]), 0.0)
 
 
-def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) -> Contours | None:
+def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray
+                  ) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
     good = np.flatnonzero(biweights(distances) > 0)  # gross outliers (weight 0) have no footprint
@@ -228,10 +232,11 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
             mask[at[:, 0] + di, at[:, 1] + dj] = True
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
-    # the widest empty disc in the domain outside the face: a real gap, or sampling?
+    # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
-    empty = in_domain & (field > margin)
-    gap = float(ndimage.distance_transform_edt(empty).max()) * cell if empty.any() else 0.0
+    empty = np.argwhere(in_domain & (field > margin))
+    gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
+                     points[good[drawn]]) if len(empty) else 0.0
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
@@ -243,6 +248,32 @@ def face_contours(surface: NurbsSurface, uv: np.ndarray, distances: np.ndarray) 
     holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
     return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
                     int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
+
+
+def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, points: np.ndarray) -> float:
+    """The widest gap on the surface outside the face, in the points' (N, 3) median
+    spacing: max over the surface at the parameters ``empty_uv`` (M, 2) (at most
+    ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
+    smaller of the distance to the nearest point and the distance to the surface's edge
+    (the chord to the edge point along each parameter line of an open direction), over
+    the median of the points' spacings (:func:`local_spacing`, on the surface).
+
+    Measured on the surface itself, not in the parameter domain at the mean speeds:
+    where the surface is stretched (an edge row of control points far out, a flap past
+    the data) a sliver of the domain is a wide band of surface with no data on it; a
+    corner of the domain the random sample left empty is no wider than the sampling."""
+    empty_uv = empty_uv[::max(1, -(-len(empty_uv) // GAP_SAMPLES))]
+    spacing = local_spacing(points)
+    at = surface.evaluate(empty_uv[:, 0], empty_uv[:, 1])
+    radius = cKDTree(points).query(at)[0]
+    for k, closed, ends in ((0, surface.closed_u, surface.domain_u), (1, surface.closed_v, surface.domain_v)):
+        if closed:
+            continue
+        for end in ends:
+            edge = empty_uv.copy()
+            edge[:, k] = end
+            radius = np.minimum(radius, np.linalg.norm(at - surface.evaluate(edge[:, 0], edge[:, 1]), axis=1))
+    return float(np.max(radius) / max(float(np.median(spacing)), 1e-300))
 
 
 def well_spread(x: np.ndarray, size: int) -> np.ndarray:
@@ -287,10 +318,10 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if mode is False or len(uv) < 4:
         return whole
-    found = face_contours(surface, uv, distances)
+    found = face_contours(surface, points, uv, distances)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
-    if mode == "auto" and found.empty_radius < ALPHA * found.spacing and len(found.polygons) == 1:
+    if mode == "auto" and found.widest_gap < ALPHA and len(found.polygons) == 1:
         return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
                          found.spacing)
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
