@@ -34,8 +34,8 @@ distances are still those of every point.
 A face that holds fewer than half of the points (a fit far from the data, pieces of
 the cloud spread over the domain) is not the data's footprint: the surface is left
 untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap
-on the surface: an empty disc on the surface outside the face of radius at least ``ALPHA``
-median spacings (as wide as the gaps the alpha shape opens; measured on the surface,
+on the surface: an empty disc on the surface outside the face (bounded by the face and the
+surface's edge) of radius at least ``ALPHA`` median spacings (as wide as the gaps the alpha shape opens; measured on the surface,
 :func:`widest_gap`, so a strip of stretched surface past the data counts however thin it
 is in the domain; a cloud that fills its rectangle leaves only sampling gaps along the
 edges); ``true`` always; ``false`` never.
@@ -235,8 +235,10 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
     empty = np.argwhere(in_domain & (field > margin))
+    rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
     gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
-                     points[good[drawn]]) if len(empty) else 0.0
+                     np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, points[good[drawn]]) \
+        if len(empty) and len(rim) else 0.0
     polygons = [p / scale for p in contours(field, xs, ys, margin)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
@@ -250,22 +252,22 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
                     int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
 
 
-def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, points: np.ndarray) -> float:
+def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray) -> float:
     """The widest gap on the surface outside the face, in the points' (N, 3) median
     spacing: max over the surface at the parameters ``empty_uv`` (M, 2) (at most
     ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
-    smaller of the distance to the nearest point and the distance to the surface's edge
-    (the chord to the edge point along each parameter line of an open direction), over
-    the median of the points' spacings (:func:`local_spacing`, on the surface).
+    smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
+    distance to the surface's edge (the chord to the edge point along each parameter
+    line of an open direction), over the median of the points' spacings
+    (:func:`local_spacing`, on the surface).
 
     Measured on the surface itself, not in the parameter domain at the mean speeds:
     where the surface is stretched (an edge row of control points far out, a flap past
-    the data) a sliver of the domain is a wide band of surface with no data on it; a
-    corner of the domain the random sample left empty is no wider than the sampling."""
+    the data) a sliver of the domain is a wide band of surface with no data on it."""
     empty_uv = empty_uv[::max(1, -(-len(empty_uv) // GAP_SAMPLES))]
-    spacing = local_spacing(points)
+    face_uv = face_uv[::max(1, -(-len(face_uv) // GAP_SAMPLES))]
     at = surface.evaluate(empty_uv[:, 0], empty_uv[:, 1])
-    radius = cKDTree(points).query(at)[0]
+    radius = cKDTree(surface.evaluate(face_uv[:, 0], face_uv[:, 1])).query(at)[0]
     for k, closed, ends in ((0, surface.closed_u, surface.domain_u), (1, surface.closed_v, surface.domain_v)):
         if closed:
             continue
@@ -273,7 +275,7 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, points: np.ndarray) 
             edge = empty_uv.copy()
             edge[:, k] = end
             radius = np.minimum(radius, np.linalg.norm(at - surface.evaluate(edge[:, 0], edge[:, 1]), axis=1))
-    return float(np.max(radius) / max(float(np.median(spacing)), 1e-300))
+    return float(np.max(radius) / max(float(np.median(local_spacing(points))), 1e-300))
 
 
 def well_spread(x: np.ndarray, size: int) -> np.ndarray:
