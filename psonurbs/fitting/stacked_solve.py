@@ -40,6 +40,7 @@ from .banded import BandOrder, StackedBandedCholesky, band_cholesky, band_select
 from .solve import CONSTRAINT_WEIGHT, RegularisedLeastSquares
 
 RIDGE = 1e-12  # relative to the mean diagonal, as in RegularisedLeastSquares.normal_matrix
+PER_PARTICLE = ("knots_u", "knots_v", "weights", "term_scales")  # the kernels' inputs with a row per particle
 
 
 class StackedLeastSquares:
@@ -101,11 +102,10 @@ class StackedLeastSquares:
         by the compiled kernel (:func:`particle_errors`), particle by particle: (P,), inf
         for a particle whose normal matrix is not positive definite."""
         given = self._kernel_inputs(weights, inner_u, inner_v, smoothing, uv, data, point_weights)
-        per_particle = ("knots_u", "knots_v", "weights", "term_scales")
         out = np.empty(len(weights))
 
         def evaluate(part: slice) -> None:  # particles are independent: a part's errors are its own
-            out[part] = particle_errors(**{**given, **{key: given[key][part] for key in per_particle}},
+            out[part] = particle_errors(**{**given, **{key: given[key][part] for key in PER_PARTICLE}},
                                         cross_validation=bool(cross_validation))
 
         compiled.over_parts(len(weights), evaluate)
@@ -123,8 +123,7 @@ class StackedLeastSquares:
         given = self._kernel_inputs(np.asarray(shape.weights, float)[None], inner[0], inner[1],
                                     np.array([self.solver.smoothing]), uv, data, point_weights)
         control = np.empty((self.n, np.shape(data)[1]))
-        if not particle_control(**{**given, "term_scales": given["term_scales"][0], "knots_u": given["knots_u"][0],
-                                   "knots_v": given["knots_v"][0], "weights": given["weights"][0]}, control=control):
+        if not particle_control(**{**given, **{key: given[key][0] for key in PER_PARTICLE}}, control=control):
             raise np.linalg.LinAlgError("the normal matrix is not positive definite")
         return control[self.order.position]
 
