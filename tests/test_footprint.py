@@ -77,6 +77,18 @@ def test_points_on_the_domain_edge_are_inside_the_face():
     assert face.trim.contains(uv).all()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_plate_touching_the_domain_edge_at_single_points_holds_them(seed):
+    # a convex plate whose parameters span the domain: its extreme points are held on the
+    # edges, where the contour touches the domain only along a short run (no margin past them)
+    uv = sample(lambda u, v: (u - 0.5) ** 2 + (v - 0.5) ** 2 < 0.25, 4000, seed=seed)
+    for k in (0, 1):
+        uv[np.argmin(uv[:, k]), k], uv[np.argmax(uv[:, k]), k] = 0.0, 1.0
+    face = fit_footprint(uv)
+    assert face.trim is not None and face.loops == 1
+    assert face.trim.contains(uv).all() and face.points_outside == 0
+
+
 def test_a_detached_fragment_is_left_off_the_face_and_counted():
     main = sample(lambda u, v: (u < 0.6) & (v < 0.8), 3000, seed=7)
     rng = np.random.default_rng(8)

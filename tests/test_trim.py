@@ -113,6 +113,11 @@ def test_contours_of_an_annulus_are_its_two_circles_oriented():
     assert areas[1] == pytest.approx(np.pi * 1.21, rel=2e-3)  # the outer r = 1.1, counter-clockwise
     simple = simplify_closed(loops[0], 1e-3)
     assert len(simple) < len(loops[0]) and len(simple) >= 8
+    fixed = np.zeros(len(loops[0]), bool)
+    fixed[1::7] = True  # vertices a loose tolerance would drop are kept when fixed
+    loose = simplify_closed(loops[0], 0.5, fixed=fixed)
+    assert len(simplify_closed(loops[0], 0.5)) < fixed.sum() <= len(loose)
+    assert {tuple(q) for q in loops[0][fixed]} <= {tuple(q) for q in loose}
 
 
 def test_trimmed_mesh_follows_the_loops():

@@ -344,13 +344,16 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
     Each loop is first a cubic with the fewest control points, doubling from 8 up to
     ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour. Then,
     together, the loops must be simple, apart, and hold ``must_inside`` (or pass within
-    the tolerance of them): a loop nearest a point left out gets twice the control points, and one already at the cap becomes
-    its contour itself, simplified within the tolerance (degree 1: it follows the
-    contour, which lies a margin outside the points); if two loops cross, all do.
+    the tolerance of them, unless they are held on the domain's edge): a loop nearest a
+    point left out gets twice the control points, and one already at the cap becomes its
+    contour itself, simplified within the tolerance keeping its runs along the domain's
+    edge (degree 1: it follows the contour, which lies a margin outside the points); if
+    two loops cross, all do.
     """
     lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
     clamped = [np.clip(p, lo, hi) for p in polygons]
     probe = np.asarray(must_inside, float)
+    on_edge = np.any((probe <= 0.0) | (probe >= 1.0), axis=1)
 
     def close_enough(loop: TrimLoop, polygon: np.ndarray) -> bool:
         """Whether the loop keeps within the tolerance of its contour (where it would add
@@ -362,7 +365,11 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
         return fit_closed_curve(polygons[k], n, 3, bounds=bounds, snap=tuple(2.0 * tolerance))
 
     def polyline(k: int, exact: bool = False) -> TrimLoop:
-        return polygon_loop(clamped[k] if exact else simplify_closed(clamped[k], float(tolerance.min())))
+        if exact:
+            return polygon_loop(clamped[k])
+        on = (clamped[k] <= lo) | (clamped[k] >= hi)  # (M, 2): the vertices on the domain's edge
+        run_ends = np.any(on & ~(np.roll(on, 1, axis=0) & np.roll(on, -1, axis=0)), axis=1)
+        return polygon_loop(simplify_closed(clamped[k], float(tolerance.min()), fixed=run_ends))
 
     cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
     counts, loops = [], []
@@ -382,13 +389,15 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
                 return loops
             blamed = set(range(len(loops)))
         else:
-            missed = probe[~inside(sampled, probe)] / tolerance
+            out = ~inside(sampled, probe)
+            missed = probe[out] / tolerance
             # a point within the tolerance of a loop is as good as on it (the loop is a
-            # margin outside the points, and only so precise)
+            # margin outside the points, and only so precise), unless it is held on the
+            # domain's edge: there the margin is cut off, the loop can run along the edge
             nearest = [cKDTree(p / tolerance).query(missed)[0] for p in sampled] if len(missed) else []
-            if len(missed) == 0 or np.min(nearest, axis=0).max() <= 1.0:
+            far = (np.min(nearest, axis=0) > 1.0) | on_edge[out] if len(missed) else np.zeros(0, bool)
+            if not far.any():
                 return loops
-            far = np.min(nearest, axis=0) > 1.0
             blamed = set(np.argmin(np.asarray(nearest)[:, far], axis=0).tolist())
         changed = False
         for k in blamed:

@@ -84,18 +84,19 @@ def contours(field: np.ndarray, x: np.ndarray, y: np.ndarray, level: float) -> l
     return out
 
 
-def simplify_closed(polygon: np.ndarray, tolerance: float) -> np.ndarray:
+def simplify_closed(polygon: np.ndarray, tolerance: float, fixed: np.ndarray | None = None) -> np.ndarray:
     """Douglas-Peucker simplification of a closed polygon (M, 2): every dropped vertex is
-    within ``tolerance`` of the kept polygon. The vertex farthest from the first is kept
-    as the second anchor."""
+    within ``tolerance`` of the kept polygon. The vertices ``fixed`` (mask (M,)) are kept,
+    and the first and the vertex farthest from it, as anchors."""
     p = np.asarray(polygon, float)
     if len(p) <= 4:
         return p
     far = int(np.argmax(np.sum((p - p[0]) ** 2, axis=1)))
-    keep = np.zeros(len(p), bool)
+    keep = np.zeros(len(p), bool) if fixed is None else np.array(fixed, bool)
     keep[[0, far]] = True
     ring = np.concatenate([p, p[:1]])
-    stack = [(0, far), (far, len(p))]
+    anchors = np.append(np.flatnonzero(keep), len(p))
+    stack = list(zip(anchors[:-1].tolist(), anchors[1:].tolist()))
     while stack:
         a, b = stack.pop()
         if b - a < 2:
