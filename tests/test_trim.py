@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import open_surface
 
+from psonurbs.geometry import raster
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.trim import (
     Trim,
@@ -156,3 +157,18 @@ def test_distances_to_the_trimmed_face():
     want = [0.2, np.hypot(0.1, 0.15), 0.15]
     assert np.allclose(got, want, atol=1e-5)
     assert np.allclose(distances_to_boundary(plane, disc, pts[:1]), np.hypot(0.2, 0.3), atol=1e-5)
+
+
+@pytest.mark.skipif(not raster.COMPILED, reason="numba not installed")
+def test_the_compiled_raster_marks_the_cells_the_numpy_reference_does(monkeypatch):
+    rng = np.random.default_rng(3)
+    corners = rng.random((400, 1, 2)) * [50.0, 30.0] - 3.0  # some past the raster's sides
+    triangles = corners + rng.normal(0.0, 2.0, (400, 3, 2))
+    triangles[0] = [[1.0, 1.0], [5.0, 1.0], [1.0, 5.0]]  # cell centres on its edges count as in
+    compiled = raster.rasterised(triangles, 0.0, 0.5, 0.5, (90, 55))
+    monkeypatch.setattr(raster, "COMPILED", False)
+    reference = raster.rasterised(triangles, 0.0, 0.5, 0.5, (90, 55))
+    np.testing.assert_array_equal(compiled, reference)
+    assert 0 < reference.sum() < reference.size
+    # the right triangle in cells: (2, 1), (10, 1), (2, 9); its legs and hypotenuse i + j = 11
+    assert reference[2:11, 1].all() and reference[2, 1:10].all() and reference[6, 5]

@@ -53,6 +53,7 @@ from scipy.spatial import Delaunay, cKDTree
 
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.raster import rasterised
 from psonurbs.geometry.trim import (
     Trim,
     TrimLoop,
@@ -148,31 +149,6 @@ def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(ok.sum()), (rows[ok], cols[ok])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     return np.where(kept, labels, -1)
-
-
-def rasterised(triangles: np.ndarray, x0: float, y0: float, cell: float, shape: tuple[int, int]) -> np.ndarray:
-    """Mask of the raster cells (centres x0 + i cell, y0 + j cell) inside any of the
-    triangles (K, 3, 2): each triangle tests the cells of its bounding box."""
-    p = (triangles - np.array([x0, y0])) / cell
-    lo = np.clip(np.ceil(p.min(axis=1)).astype(int), 0, np.array(shape) - 1)
-    hi = np.clip(np.floor(p.max(axis=1)).astype(int), 0, np.array(shape) - 1)
-    n = np.maximum(hi - lo + 1, 0)
-    count = n[:, 0] * n[:, 1]
-    owner = np.repeat(np.arange(len(p)), count)
-    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
-    i = lo[owner, 0] + local // np.maximum(n[owner, 1], 1)
-    j = lo[owner, 1] + local % np.maximum(n[owner, 1], 1)
-    a, b, c = p[owner, 0], p[owner, 1], p[owner, 2]
-    q = np.stack([i, j], axis=1).astype(float)
-
-    def side(s, t):
-        return (t[:, 0] - s[:, 0]) * (q[:, 1] - s[:, 1]) - (t[:, 1] - s[:, 1]) * (q[:, 0] - s[:, 0])
-
-    d1, d2, d3 = side(a, b), side(b, c), side(c, a)
-    hit = ~((np.minimum(np.minimum(d1, d2), d3) < 0) & (np.maximum(np.maximum(d1, d2), d3) > 0))
-    mask = np.zeros(shape, bool)
-    mask[i[hit], j[hit]] = True
-    return mask
 
 
 @dataclass(frozen=True)
