@@ -238,3 +238,38 @@ def test_both_scorers_agree_on_a_fit(tmp_path):
             assert abs(ours[key] - theirs[key]) <= allowed, (directory.name, key, ours, theirs)
         assert ours["overhang"] == pytest.approx(theirs["overhang"], abs=1e-3)
         assert ours["claimed_rmse"] == theirs["claimed_rmse"] and ours["curve_ok"] == theirs["curve_ok"]
+
+
+def test_error_split_puts_the_error_of_a_surface_past_its_data_past_the_data(tmp_path, monkeypatch):
+    """A plane over [0, 2] x [0, 1] fitted to a dense grid on [0, 1]^2 (diagonal sqrt 2):
+    the surface farther than 2% of the diagonal from every point is the strip
+    x > 1 + 0.02 sqrt 2 (48.6% of a uniform grid in x); the data's own footprint has
+    none; the truth (the unit square) is missed only past the data."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports the scorer beside it
+    split = load("bench_error_split", REPO / "benchmarks" / "error_split.py")
+    from psonurbs.geometry.basis import clamped_knots
+    from psonurbs.geometry.nurbs import NurbsSurface
+    g = np.linspace(0.0, 1.0, 4)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    plane = NurbsSurface(3, 3, clamped_knots(4, 3), clamped_knots(4, 3),
+                         np.stack([2.0 * uu, vv, 0.0 * uu], axis=-1), np.ones((4, 4)))
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "sheet.json").write_text(json.dumps({"surface": plane.to_dict()}))
+    x, y = np.meshgrid(np.linspace(0, 1, 71), np.linspace(0, 1, 71), indexing="ij")
+    np.savetxt(tmp_path / "sheet.xyz", np.column_stack([x.ravel(), y.ravel(), 0.0 * x.ravel()]))
+    truth = scorer.MeshDistance(np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
+                                np.array([[0, 1, 2], [0, 2, 3]]))
+    row = split.split(tmp_path / "sheet.xyz", tmp_path / "fit", truth, np.random.default_rng(0))
+    assert row["overhang"] == pytest.approx(1.0 - (1.0 + 0.02 * np.sqrt(2.0)) / 2.0, abs=0.004)
+    # of it within 2% of the diagonal of the surface's edge: the bands along x = 2, y = 0, y = 1
+    d = 0.02 * np.sqrt(2.0)
+    xs, ys = np.meshgrid(np.linspace(0, 2, 301), np.linspace(0, 1, 301), indexing="ij")
+    band = (xs > 1 + d) & ((xs >= 2 - d) | (ys <= d) | (ys >= 1 - d))
+    assert row["overhang_at_edge"] == pytest.approx(band.mean(), abs=0.004)
+    assert row["floor"] == 0.0
+    # over the data (within 1% of the diagonal of a point) the truth is missed only at
+    # 1 < x <= 1 + 0.01 sqrt 2, by less than 1% of the diagonal
+    assert row["truth_share_past"] == pytest.approx(1.0, abs=1e-4)
+    assert 0.0 < row["truth_rms_over_data"] < 0.01 * 0.15
+    # samples at x = 1 + t lie t from the truth: rms over x in [0, 2] of max(x - 1, 0), / diagonal
+    assert row["truth_rms"] == pytest.approx(np.sqrt(1.0 / 6.0) / np.sqrt(2.0), rel=0.01)
