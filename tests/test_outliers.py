@@ -44,6 +44,22 @@ def test_normal_noise_is_never_an_outlier_and_its_scale_is_measured():
     assert verdict.noise == pytest.approx(1e-3, rel=0.05)
 
 
+def test_the_verdict_is_the_same_in_any_number_of_threads(monkeypatch):
+    # 20,000 points with junk: three chunks of neighbourhood fits, the KD-tree's queries
+    # and the chunks shared among threads; every array the same bits
+    pts, _, rng = franke_cloud(20_000, 4, 1e-3)
+    cloud = normalised(np.vstack([pts, rng.uniform(pts.min(0), pts.max(0), (300, 3))]))
+    verdicts = []
+    for threads in ("1", "2", "3"):
+        monkeypatch.setenv("PSONURBS_THREADS", threads)
+        verdicts.append(local_outliers(cloud))
+    for other in verdicts[1:]:
+        for name in ("outliers", "statistic", "support", "neighbours", "agree", "order"):
+            np.testing.assert_array_equal(getattr(other, name), getattr(verdicts[0], name))
+        assert other.noise == verdicts[0].noise
+    assert verdicts[0].outliers.sum() > 100
+
+
 def test_junk_in_the_bounding_box_is_caught_and_no_surface_point():
     pts, diag, rng = franke_cloud(4500, 1, 1e-3)
     junk = rng.uniform(pts.min(0), pts.max(0), (500, 3))

@@ -45,6 +45,9 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from psonurbs.geometry import compiled
+from psonurbs.geometry.chunks import chunks
+
 NEIGHBOURS = 24  # k: a quadric (6 coefficients) with room for a few junk neighbours
 OUTLIER_SIGMAS = 20.0  # gross: beyond heavy-tailed scanner noise (see the module docstring)
 SUPPORT_SIGMAS = 7.0  # a support point surely lies on its neighbours' surface (normal: 3e-12 off)
@@ -244,7 +247,7 @@ def nearest_among(points: np.ndarray, among: np.ndarray, k: int, rows: np.ndarra
     if len(rows) == 0:
         return Nearest(np.zeros((0, k), np.int64), np.zeros(0, bool))
     pool = np.flatnonzero(among)
-    distance, found = cKDTree(points[pool]).query(points[rows], k=k + 1)
+    distance, found = cKDTree(points[pool]).query(points[rows], k=k + 1, workers=compiled.threads())
     distance, found = distance.reshape(len(rows), k + 1), found.reshape(len(rows), k + 1)
     nearest = pool[found]
     own = nearest == rows[:, None]
@@ -300,14 +303,17 @@ def plain_spread(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray
     their radius (N,). No robustness: scattered junk must look scattered."""
     n, k = neighbours.shape
     spread, radius = np.empty(n), np.empty(n)
-    for start in range(0, n, CHUNK):
-        rows = slice(start, min(n, start + CHUNK))
+
+    def chunk(rows: slice) -> None:  # the chunks are independent: threads (each writes its own rows)
         p = points[neighbours[rows]]
         ones = np.ones(p.shape[:2])
         xy, z, _, _, radius[rows] = _local(p, *_frame(p, ones), points[rows])
         a = _monomials(xy, True)
         e = z - _apply(a, _solve(a, ones, z))
         spread[rows] = np.sqrt(np.sum(e * e, axis=1) / max(k - a.shape[2], 1))
+
+    for _ in compiled.in_order(chunk, chunks(n, CHUNK)):
+        pass
     return spread, radius
 
 
@@ -323,8 +329,8 @@ def fit_neighbourhoods(points: np.ndarray, centres: np.ndarray, neighbours: np.n
     n, k = neighbours.shape
     out = {name: np.empty(n) for name in ("residual", "spread", "radius")}
     all_weights = np.empty((n, k))
-    for start in range(0, n, CHUNK):
-        rows = slice(start, min(n, start + CHUNK))
+
+    def chunk(rows: slice) -> None:  # the chunks are independent: threads (each writes its own rows)
         p, x = points[neighbours[rows]], points[centres[rows]]
         # robust start: the weights of the distances from the coordinate-wise median
         d = np.linalg.norm(p - np.median(p, axis=1)[:, None], axis=2)
@@ -348,6 +354,9 @@ def fit_neighbourhoods(points: np.ndarray, centres: np.ndarray, neighbours: np.n
         out["spread"][rows] = np.sqrt(np.sum(w * e * e, axis=1) / np.maximum(w.sum(axis=1) - 6, 1.0))
         out["radius"][rows] = radius
         all_weights[rows] = w
+
+    for _ in compiled.in_order(chunk, chunks(n, CHUNK)):
+        pass
     return NeighbourhoodFits(weights=all_weights, **out)
 
 
