@@ -2,6 +2,7 @@
 import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 
@@ -68,3 +69,16 @@ def test_over_parts_covers_every_item_once_in_parts_of_at_least_the_smallest(mon
         assert (seen == 1).all(), (count, smallest)
         expected = max(1, min(4, count // smallest)) if compiled.ENABLED else 1
         assert len(parts) == expected and (count == 0 or min(parts) >= min(smallest, count)), (count, parts)
+
+
+def test_each_calls_the_function_once_per_item_in_threads(monkeypatch):
+    monkeypatch.setenv("PSONURBS_THREADS", "3")
+    out, threads = np.zeros(100), set()
+
+    def work(part):
+        threads.add(threading.get_ident())
+        out[part] += np.arange(part.start, part.stop)
+
+    compiled.each(work, [slice(k, k + 10) for k in range(0, 100, 10)])
+    np.testing.assert_array_equal(out, np.arange(100))
+    assert 1 <= len(threads) <= 3

@@ -304,7 +304,7 @@ def plain_spread(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray
     n, k = neighbours.shape
     spread, radius = np.empty(n), np.empty(n)
 
-    def chunk(rows: slice) -> None:  # the chunks are independent: threads (each writes its own rows)
+    def chunk(rows: slice) -> None:  # independent chunks, each writing its own rows: in threads
         p = points[neighbours[rows]]
         ones = np.ones(p.shape[:2])
         xy, z, _, _, radius[rows] = _local(p, *_frame(p, ones), points[rows])
@@ -312,8 +312,7 @@ def plain_spread(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray
         e = z - _apply(a, _solve(a, ones, z))
         spread[rows] = np.sqrt(np.sum(e * e, axis=1) / max(k - a.shape[2], 1))
 
-    for _ in compiled.in_order(chunk, chunks(n, CHUNK)):
-        pass
+    compiled.each(chunk, chunks(n, CHUNK))
     return spread, radius
 
 
@@ -330,7 +329,7 @@ def fit_neighbourhoods(points: np.ndarray, centres: np.ndarray, neighbours: np.n
     out = {name: np.empty(n) for name in ("residual", "spread", "radius")}
     all_weights = np.empty((n, k))
 
-    def chunk(rows: slice) -> None:  # the chunks are independent: threads (each writes its own rows)
+    def chunk(rows: slice) -> None:  # independent chunks, each writing its own rows: in threads
         p, x = points[neighbours[rows]], points[centres[rows]]
         # robust start: the weights of the distances from the coordinate-wise median
         d = np.linalg.norm(p - np.median(p, axis=1)[:, None], axis=2)
@@ -355,8 +354,7 @@ def fit_neighbourhoods(points: np.ndarray, centres: np.ndarray, neighbours: np.n
         out["radius"][rows] = radius
         all_weights[rows] = w
 
-    for _ in compiled.in_order(chunk, chunks(n, CHUNK)):
-        pass
+    compiled.each(chunk, chunks(n, CHUNK))
     return NeighbourhoodFits(weights=all_weights, **out)
 
 

@@ -76,6 +76,14 @@ def in_order(function: Callable[[Item], Result], items: Iterable[Item]) -> Itera
     yield from _pool(min(threads(), len(items))).map(function, items)
 
 
+def each(function: Callable[[Item], None], items: Iterable[Item]) -> None:
+    """``function(item)`` for each item, in threads as :func:`in_order`: for numpy work
+    on fixed chunks that writes only its own part of a shared output (the bits do not
+    depend on the number of threads)."""
+    for _ in in_order(function, items):
+        pass
+
+
 def over_parts(count: int, run: Callable[[slice], None], smallest: int = 1) -> None:
     """``run(part)`` for contiguous slices covering range(count), each at least ``smallest``
     items, in up to :func:`threads` threads at once (one call, in this thread, when one
