@@ -36,8 +36,9 @@ def contours(field: np.ndarray, x: np.ndarray, y: np.ndarray, level: float) -> l
     def v(i, j):
         return n_h + i * (ny - 1) + j
 
-    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
-    i, j = i.ravel(), j.ravel()
+    # only the cells the level crosses (corners on both sides), in the grid's order
+    a, b, c, d = inside[:-1, :-1], inside[1:, :-1], inside[1:, 1:], inside[:-1, 1:]
+    i, j = np.nonzero((a | b | c | d) & ~(a & b & c & d))
     corners = np.stack([inside[i, j], inside[i + 1, j], inside[i + 1, j + 1], inside[i, j + 1]], axis=1)
     edges = np.stack([h(i, j), v(i + 1, j), h(i, j + 1), v(i, j)], axis=1)  # a-b, b-c, c-d, d-a
     leaving = corners & ~np.roll(corners, -1, axis=1)  # edge k walked from inside to outside
@@ -59,17 +60,7 @@ def contours(field: np.ndarray, x: np.ndarray, y: np.ndarray, level: float) -> l
     successor = np.full(n_h + nx * (ny - 1), -1)
     successor[starts] = ends
 
-    # the crossing point of each edge
-    ei = np.concatenate([np.repeat(np.arange(nx - 1), ny), np.repeat(np.arange(nx), ny - 1)])
-    ej = np.concatenate([np.tile(np.arange(ny), nx - 1), np.tile(np.arange(ny - 1), nx)])
-    di = np.concatenate([np.ones(n_h, int), np.zeros(nx * (ny - 1), int)])
-    f0, f1 = f[ei, ej], f[ei + di, ej + 1 - di]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.where(f1 != f0, (level - f0) / (f1 - f0), 0.5), 0.0, 1.0)
-    px = x[ei] + t * (x[ei + di] - x[ei])
-    py = y[ej] + t * (y[ej + 1 - di] - y[ej])
-
-    out = []
+    chains = []
     visited = np.zeros(len(successor), bool)
     for start in starts:
         if visited[start]:
@@ -80,8 +71,22 @@ def contours(field: np.ndarray, x: np.ndarray, y: np.ndarray, level: float) -> l
             visited[e] = True
             loop.append(e)
             e = int(successor[e])
-        out.append(np.stack([px[loop], py[loop]], axis=1))
-    return out
+        chains.append(np.array(loop))
+    return [np.stack(crossings(f, x, y, level, n_h, ny, loop), axis=1) for loop in chains]
+
+
+def crossings(f: np.ndarray, x: np.ndarray, y: np.ndarray, level: float, n_h: int, ny: int,
+              edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the level crosses the grid's ``edges`` (ids as in :func:`contours`: the
+    horizontal ones first), by linear interpolation along each: (x, y), each (M,)."""
+    horizontal = edges < n_h
+    ei = np.where(horizontal, edges // ny, (edges - n_h) // (ny - 1))
+    ej = np.where(horizontal, edges % ny, (edges - n_h) % (ny - 1))
+    di = horizontal.astype(int)
+    f0, f1 = f[ei, ej], f[ei + di, ej + 1 - di]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(f1 != f0, (level - f0) / (f1 - f0), 0.5), 0.0, 1.0)
+    return x[ei] + t * (x[ei + di] - x[ei]), y[ej] + t * (y[ej + 1 - di] - y[ej])
 
 
 def simplify_closed(polygon: np.ndarray, tolerance: float, fixed: np.ndarray | None = None) -> np.ndarray:
