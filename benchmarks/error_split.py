@@ -80,11 +80,14 @@ def split(cloud: Path, result: Path, truth, rng: np.random.Generator) -> dict:
     gap = cKDTree(points).query(at[on])[0] / diag
     over = gap > OVERHANG
     edge = cKDTree(at[~on]) if (~on).any() else None
-    grid_edge = np.zeros((GRID, GRID), bool)
-    grid_edge[[0, -1], :] = grid_edge[:, [0, -1]] = True  # the surface's own edge
-    rim = at[grid_edge.ravel()]
+    grid_edge = np.zeros((GRID, GRID), bool)  # the surface's own edges (not a closed direction's seam)
+    if not surface.closed_u:
+        grid_edge[[0, -1], :] = True
+    if not surface.closed_v:
+        grid_edge[:, [0, -1]] = True
+    rims = [cKDTree(at[grid_edge.ravel()])] if grid_edge.any() else []
     near_edge = np.zeros(int(over.sum()), bool)
-    for boundary in ([edge] if edge is not None else []) + [cKDTree(rim)]:
+    for boundary in ([edge] if edge is not None else []) + rims:
         near_edge |= boundary.query(at[on][over])[0] / diag <= OVERHANG
     row = {"fit": str(result), "overhang": float(over.mean()),
            "overhang_at_edge": float(near_edge.sum() / max(len(gap), 1)),
