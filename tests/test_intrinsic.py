@@ -162,6 +162,16 @@ def test_auto_lays_flat_what_no_plane_sees_as_a_height_field(name, cloud, why):
     assert why in par.info["choice"]["reason"]
 
 
+def test_auto_computes_both_candidates_side_by_side_with_the_same_result(monkeypatch):
+    cloud = cylinder_section(noise=1e-3)[0]
+    monkeypatch.setenv("PSONURBS_THREADS", "1")
+    alone = parametrise_open_patch(cloud, "auto")
+    monkeypatch.setenv("PSONURBS_THREADS", "2")
+    beside = parametrise_open_patch(cloud, "auto")
+    np.testing.assert_array_equal(alone.uv, beside.uv)
+    assert alone.info == beside.info and alone.info["method"] == "intrinsic"
+
+
 def test_strays_do_not_shrink_the_square_the_surface_fills():
     """A stray's offset is not unrolled (it is cut to the neighbourhood's reach), so the
     rectangle is the surface's: its points still fill the unit square."""

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from psonurbs.geometry import compiled
+
 from .intrinsic import embedding_sample, parametrise_intrinsic, surface_graph
 from .parametrise import Parametrisation, cell_counts, parametrise_open
 
@@ -85,10 +87,11 @@ def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametr
         return parametrise_open(points)
     sample = embedding_sample(len(points))
     graph = surface_graph(points[sample])
-    intrinsic = parametrise_intrinsic(points, graph)
     if method == "intrinsic":
-        return intrinsic
-    plane = parametrise_open(points)
+        return parametrise_intrinsic(points, graph)
+    # the two candidates are independent: side by side in threads
+    intrinsic, plane = compiled.in_order(lambda candidate: candidate(),
+                                         [lambda: parametrise_intrinsic(points, graph), lambda: parametrise_open(points)])
     areas = graph.lengths[:, -1] ** 2  # ~ the surface area each point stands for
     part = graph.component
     cells = int(np.clip(np.sqrt(len(sample) / 8.0), 2, 16))
