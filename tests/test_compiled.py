@@ -82,3 +82,22 @@ def test_each_calls_the_function_once_per_item_in_threads(monkeypatch):
     compiled.each(work, [slice(k, k + 10) for k in range(0, 100, 10)])
     np.testing.assert_array_equal(out, np.arange(100))
     assert 1 <= len(threads) <= 3
+
+
+def test_work_shared_inside_a_pool_worker_runs_there(monkeypatch):
+    # nested sharing would wait on the very workers it occupies: it runs in the worker instead
+    monkeypatch.setenv("PSONURBS_THREADS", "2")
+    out = np.zeros((2, 100))
+
+    def outer(row):
+        def inner(part):
+            out[row, part] += 1.0 + row
+        compiled.over_parts(100, inner, 10)
+        return sum(compiled.in_order(lambda k: k * row, range(5)))
+
+    done = []
+    runner = threading.Thread(target=lambda: done.append(list(compiled.in_order(outer, [0, 1]))), daemon=True)
+    runner.start()
+    runner.join(timeout=30)
+    assert done == [[0, 10]]
+    np.testing.assert_array_equal(out, [[1.0] * 100, [2.0] * 100])

@@ -12,11 +12,13 @@ on a machine pays the compile time. No ``fastmath``: the same inputs give the sa
 
 Kernels release the GIL (``nogil``), so a kernel over independent items (points, particles)
 runs on parts of them in threads (:func:`over_parts`): up to :func:`threads` at once. Each
-item's numbers are its own, so the bits do not depend on the split.
+item's numbers are its own, so the bits do not depend on the split. Work shared out from
+inside one of these threads runs in that thread (the pool's workers are busy with it).
 """
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import Callable, Iterable, Iterator, TypeVar
@@ -56,9 +58,18 @@ def threads() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+POOL_PREFIX = "psonurbs-kernel"
+
+
 @lru_cache(maxsize=4)
 def _pool(size: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=size, thread_name_prefix="psonurbs-kernel")
+    return ThreadPoolExecutor(max_workers=size, thread_name_prefix=POOL_PREFIX)
+
+
+def _shared() -> int:
+    """Threads work may be shared among here: :func:`threads`, or 1 inside a pool's own
+    worker (work nested in work already shared would wait on the workers it occupies)."""
+    return 1 if threading.current_thread().name.startswith(POOL_PREFIX) else threads()
 
 
 Item, Result = TypeVar("Item"), TypeVar("Result")
@@ -70,7 +81,7 @@ def in_order(function: Callable[[Item], Result], items: Iterable[Item]) -> Itera
     loops). A caller that sums the results in that order gets the same bits whatever the
     number of threads."""
     items = list(items)
-    if threads() <= 1 or len(items) <= 1:
+    if _shared() <= 1 or len(items) <= 1:
         yield from map(function, items)
         return
     yield from _pool(min(threads(), len(items))).map(function, items)
@@ -89,7 +100,7 @@ def over_parts(count: int, run: Callable[[slice], None], smallest: int = 1) -> N
     items, in up to :func:`threads` threads at once (one call, in this thread, when one
     thread is all there is or the items are too few to share); exceptions propagate.
     ``run`` must write only its own part of any shared output."""
-    parts = min(threads(), count // max(smallest, 1)) if ENABLED else 1
+    parts = min(_shared(), count // max(smallest, 1)) if ENABLED else 1
     if parts <= 1:
         run(slice(0, count))
         return
