@@ -80,11 +80,11 @@ def in_order(function: Callable[[Item], Result], items: Iterable[Item]) -> Itera
     items' order: for numpy work on fixed chunks (numpy releases the GIL inside its
     loops). A caller that sums the results in that order gets the same bits whatever the
     number of threads."""
-    items = list(items)
-    if _shared() <= 1 or len(items) <= 1:
+    items, shared = list(items), _shared()
+    if shared <= 1 or len(items) <= 1:
         yield from map(function, items)
         return
-    yield from _pool(min(threads(), len(items))).map(function, items)
+    yield from _pool(min(shared, len(items))).map(function, items)
 
 
 def each(function: Callable[[Item], None], items: Iterable[Item]) -> None:
