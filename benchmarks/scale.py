@@ -324,7 +324,7 @@ def reading(n: int) -> None:
 
 
 def plot(path: Path, sources: list[str]) -> None:
-    """Wall seconds of the whole command against points, log-log, one line per saved result
+    """CPU seconds of the whole command against points, log-log, one line per saved result
     file (FILE:LABEL), with the issue's marks (60 s at 300k points, 180 s at 1M)."""
     import matplotlib
 
@@ -336,12 +336,12 @@ def plot(path: Path, sources: list[str]) -> None:
         file, _, label = source.partition(":")
         rows = [r for r in json.loads(Path(file).read_text()) if r["kind"] == "ripples" and "error" not in r]
         rows.sort(key=lambda r: r["points"])
-        ax.plot([r["points"] for r in rows], [r["total_seconds"] for r in rows], "o-", label=label or file)
+        ax.plot([r["points"] for r in rows], [r["total_cpu_seconds"] for r in rows], "o-", label=label or file)
     ax.plot([3e5, 1e6], [60, 180], "kv", label="targets: 60 s at 300k, 180 s at 1M")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("points (ripples, 16 x 16 cubic, default swarm)")
-    ax.set_ylabel("wall seconds (read, fit, write; 2 cores)")
+    ax.set_ylabel("CPU seconds (read, fit, write)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
