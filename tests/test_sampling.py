@@ -21,7 +21,6 @@ def config(**kw):
 
 def test_the_subsample_holds_the_swarm_points_and_is_fixed(monkeypatch):
     monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 500)
-    monkeypatch.setattr(sampling, "POINTS_PER_CONTROL", 0)
     swarm = np.sort(np.random.default_rng(0).choice(3000, 300, replace=False))
     assert sampling.big_cloud_sample(500, swarm[:100]) is None
     big = sampling.big_cloud_sample(3000, swarm)
@@ -31,18 +30,6 @@ def test_the_subsample_holds_the_swarm_points_and_is_fixed(monkeypatch):
     many = np.random.default_rng(1).permutation(3000)[:800]
     np.testing.assert_array_equal(sampling.big_cloud_sample(3000, many), np.sort(many))
     assert sampling.big_cloud_sample(800, np.arange(800)) is None
-
-
-def test_a_bigger_net_is_fitted_on_more_points():
-    """The subsample keeps POINTS_PER_CONTROL points per control point of a big net
-    (never fewer than SUBSAMPLE_POINTS), so a net's statistical error does not grow with it."""
-    small, large = 10 * 8, 40 * 40
-    assert sampling.subsample_size(small) == sampling.SUBSAMPLE_POINTS
-    assert sampling.subsample_size(large) == sampling.POINTS_PER_CONTROL * large > sampling.SUBSAMPLE_POINTS
-    swarm = np.arange(0, 200_000, 200)
-    assert len(sampling.big_cloud_sample(200_000, swarm, small)) == sampling.SUBSAMPLE_POINTS
-    assert len(sampling.big_cloud_sample(200_000, swarm, large)) == sampling.POINTS_PER_CONTROL * large
-    assert sampling.big_cloud_sample(sampling.POINTS_PER_CONTROL * large, swarm[:50], large) is None
 
 
 @pytest.mark.parametrize("layout", [NetLayout((5, 4), (3, 2)), NetLayout((5, 4), (2, 2), (True, False)),
@@ -71,7 +58,6 @@ def test_a_big_cloud_is_fitted_as_well_as_every_point_and_its_junk_counted(monke
     cfg = config()
     whole = fit_points(points, cfg)
     monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
-    monkeypatch.setattr(sampling, "POINTS_PER_CONTROL", 0)
     big = fit_points(points, cfg)
     assert big.info["subsample"]["points"] == 800 and "subsample" not in whole.info
     assert any("fitted on 800 of the 2500 points" in note for note in big.notes)
@@ -105,7 +91,6 @@ def test_a_big_closed_cloud_is_fitted_the_same_twice_near_its_noise(monkeypatch)
     radius = 1 + 0.005 * rng.normal(size=3000)
     points = np.c_[radius * np.cos(angle), radius * np.sin(angle), height]
     monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
-    monkeypatch.setattr(sampling, "POINTS_PER_CONTROL", 0)
     cfg = config(topology="cylinder", net_size=[8, 5])
     first, second = fit_points(points, cfg), fit_points(points, cfg)
     np.testing.assert_array_equal(first.surface.control_points, second.surface.control_points)
@@ -127,7 +112,6 @@ def test_a_big_cloud_s_metrics_are_every_input_point_s_distance(monkeypatch):
     points[:25] = rng.uniform(points.min(0), points.max(0), (25, 3)) + [0, 0, 1.0]
     points = np.concatenate([points, points[rng.choice(2500, 200)]])  # 200 duplicates
     monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
-    monkeypatch.setattr(sampling, "POINTS_PER_CONTROL", 0)
     big = fit_points(points, config())
     dist = closest_parameters(big.surface, points)[1]
     assert big.metrics["points"] == 2700 and big.metrics["outliers"] == 25

@@ -232,7 +232,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         rng = np.random.default_rng(config.swarm.seed)
         sample = subsample(len(cloud), config.swarm_points, rng)
         # a big cloud is fitted on a subsample holding the swarm's points, then finished on all
-        big = big_cloud_sample(len(cloud), sample, int(np.prod(config.net_size))) if config.strategy == "hybrid" else None
+        big = big_cloud_sample(len(cloud), sample) if config.strategy == "hybrid" else None
         fitted, fitted_sample = (cloud, sample) if big is None else (
             Cloud(cloud.points[big], cloud.frame, cloud.duplicates), np.searchsorted(big, sample))
         scores = None

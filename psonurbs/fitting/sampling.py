@@ -2,19 +2,16 @@
 
 The swarm, its validation, both polishes (tens of rounds each), the joint refinement
 and the choice of a topology all decide a surface of a few hundred unknowns, which a
-few thousand points per hundred unknowns determine to below the noise (a least-squares
-fit of u unknowns from n points is off by about sigma sqrt(u / n)). So a cloud of more
-points than :func:`subsample_size` (``SUBSAMPLE_POINTS``, or ``POINTS_PER_CONTROL``
-per control point of a bigger net: sqrt(3 / 40) = 0.27 sigma for the three
-coordinates of every control point) is fitted on a random subsample of that size
-(holding the swarm's points), and the result is finished on every point
-(:func:`finished`): every point's foot point on it (a global search, as the metrics take
-it), with ``robust`` its weight by the robust loss on that fit (judged with the local
-test's neighbourhoods of the whole cloud; the subsample's own fit weighs its points by
-the plain scale), and up to ``FINAL_ROUNDS`` rounds of parameter correction on the
-points kept, with the subsample's knots, weights and smoothing: its last solves take
-every point, so the control points are those of the whole cloud. The result is the fit
-of every point; smaller clouds are fitted as before.
+few tens of thousands of points determine to well below the noise (a least-squares
+fit from n points is off by about sigma sqrt(unknowns / n)). So a cloud of more than
+``SUBSAMPLE_POINTS`` points is fitted on a random subsample of that size (holding the
+swarm's points), and the result is finished on every point (:func:`finished`): every
+point's foot point on it (a global search, as the metrics take it), with ``robust`` its
+weight by the robust loss on that fit (judged with the local test's neighbourhoods of the
+whole cloud; the subsample's own fit weighs its points by the plain scale), and up to
+``FINAL_ROUNDS`` rounds of parameter correction on the points kept, with the subsample's
+knots, weights and smoothing. The result is the fit
+of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted as before.
 """
 from __future__ import annotations
 
@@ -32,23 +29,16 @@ from .polish import polish
 from .robust import biweights
 from .solve import RegularisedLeastSquares
 
-SUBSAMPLE_POINTS = 10_000  # a bigger cloud is fitted on this many of its points (at least), then finished on all
-POINTS_PER_CONTROL = 40  # ... or on this many per control point of its net, if more
+SUBSAMPLE_POINTS = 20_000  # a bigger cloud is fitted on this many of its points, then finished on all
 FINAL_ROUNDS = 3  # rounds of parameter correction on every point after that (each a solve and foot points)
 SAMPLE_SEED = 14  # the subsample is fixed: the same cloud gives the same fit
 
 
-def subsample_size(control_points: int) -> int:
-    """Points a big cloud is fitted on for a net of this many control points."""
-    return max(SUBSAMPLE_POINTS, POINTS_PER_CONTROL * control_points)
-
-
-def big_cloud_sample(n: int, swarm_sample: np.ndarray, control_points: int = 0) -> np.ndarray | None:
+def big_cloud_sample(n: int, swarm_sample: np.ndarray) -> np.ndarray | None:
     """Sorted indices of the subsample a cloud of n points is fitted on (the swarm's
-    sample and others drawn at random, :func:`subsample_size` in all for a net of
-    ``control_points``, or the swarm's sample alone if that is bigger), or None if that
-    would be every point."""
-    size = max(subsample_size(control_points), len(swarm_sample))
+    sample and others drawn at random, ``SUBSAMPLE_POINTS`` in all or the swarm's sample
+    alone if that is bigger), or None if that would be every point."""
+    size = max(SUBSAMPLE_POINTS, len(swarm_sample))
     if n <= size:
         return None
     others = np.setdiff1d(np.arange(n), swarm_sample)
