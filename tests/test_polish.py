@@ -25,6 +25,28 @@ def test_anderson_mixing_solves_a_slow_linear_iteration_much_faster():
     assert rounds < 60, rounds
 
 
+def test_relaxed_anderson_mixing_reaches_the_same_fixed_point_and_beta_one_is_the_plain_mix():
+    """x <- A x + b as above: with a relaxation beta (x + beta f - (dX + beta dF) c) the
+    mix still converges to the fixed point; beta 1 gives the plain mix's iterates to the bit."""
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(20, 20)))
+    a = q @ np.diag(np.linspace(0.1, 0.97, 20)) @ q.T
+    b = rng.normal(size=20)
+    fixed = np.linalg.solve(np.eye(20) - a, b)
+
+    def run(**relax):
+        x, mixer, seen = np.zeros((10, 2)), AndersonMixing((False, False), depth=10, **relax), []
+        for _ in range(80):
+            x = mixer.next(x, (a @ x.ravel() + b).reshape(10, 2))
+            seen.append(x)
+        return seen
+
+    plain, one, relaxed = run(), run(relaxation=1.0), run(relaxation=1.8)
+    assert all(np.array_equal(p, o) for p, o in zip(plain, one))
+    assert np.abs(relaxed[-1].ravel() - fixed).max() < 1e-9
+    assert not np.array_equal(relaxed[3], plain[3])  # it is another iteration
+
+
 def test_anderson_mixing_differences_a_closed_direction_across_the_seam():
     # u is closed: a move from 0.95 to 0.05 is +0.1, not -0.9; v is open and moves plainly
     mixer = AndersonMixing((True, False))

@@ -86,10 +86,14 @@ class AndersonMixing:
     correction alone converges linearly, with a rate near 1 on dense data; mixed, it
     needs a few times fewer rounds. Closed directions are differenced modulo 1, so the
     result is unwrapped: the caller maps it back into the domain.
+
+    With a ``relaxation`` beta the step is x_k + beta f_k - (dX + beta dF) c (dX the
+    differences of the iterates): beta 1 is the plain mix above (the default: the
+    polish uses it); ``benchmarks/polish_rounds.py`` measures others.
     """
 
-    def __init__(self, closed: tuple[bool, bool], depth: int = 5):
-        self.closed, self.depth = np.asarray(closed), depth
+    def __init__(self, closed: tuple[bool, bool], depth: int = 5, relaxation: float = 1.0):
+        self.closed, self.depth, self.relaxation = np.asarray(closed), depth, relaxation
         self.images: list[np.ndarray] = []
         self.residuals: list[np.ndarray] = []
 
@@ -105,12 +109,15 @@ class AndersonMixing:
         f[:, self.closed] = (f[:, self.closed] + 0.5) % 1.0 - 0.5
         g = x + f  # the image, unwrapped next to x
         self.images, self.residuals = (self.images + [g])[-self.depth - 1:], (self.residuals + [f])[-self.depth - 1:]
+        over = self.relaxation - 1.0  # x + beta f = g + over f, and dX + beta dF = dG + over dF
         if not self.mixing:
-            return g
+            return g if over == 0.0 else g + over * f
         d_f = np.stack([(b - a).ravel() for a, b in zip(self.residuals, self.residuals[1:])], axis=1)
         d_g = np.stack([(b - a).ravel() for a, b in zip(self.images, self.images[1:])], axis=1)
         c = np.linalg.lstsq(d_f, f.ravel(), rcond=None)[0]
-        return g - (d_g @ c).reshape(g.shape)
+        if over == 0.0:
+            return g - (d_g @ c).reshape(g.shape)
+        return g + over * f - ((d_g + over * d_f) @ c).reshape(g.shape)
 
 
 class Polished(NamedTuple):
