@@ -116,14 +116,12 @@ class AndersonMixing:
         f[:, self.closed] = (f[:, self.closed] + 0.5) % 1.0 - 0.5
         g = x + f  # the image, unwrapped next to x
         self.images, self.residuals = (self.images + [g])[-self.depth - 1:], (self.residuals + [f])[-self.depth - 1:]
-        over = self.relaxation - 1.0  # x + beta f = g + over f, and dX + beta dF = dG + over dF
+        over = self.relaxation - 1.0  # x + beta f = g + over f, dX + beta dF = dG + over dF (exact at beta 1)
         if not self.mixing:
-            return g if over == 0.0 else g + over * f
+            return g + over * f
         d_f = np.stack([(b - a).ravel() for a, b in zip(self.residuals, self.residuals[1:])], axis=1)
         d_g = np.stack([(b - a).ravel() for a, b in zip(self.images, self.images[1:])], axis=1)
         c = np.linalg.lstsq(d_f, f.ravel(), rcond=None)[0]
-        if over == 0.0:
-            return g - (d_g @ c).reshape(g.shape)
         return g + over * f - ((d_g + over * d_f) @ c).reshape(g.shape)
 
 
