@@ -173,13 +173,17 @@ class JointProblem:
         d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
         d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
         d_uv = np.empty((len(lin["residual"]), 2))
-        for chunk, q in zip(lin["parts"], terms):
-            part, piece, scaled = chunk.part, chunk.piece, chunk.scaled
+
+        def back_substitute(job: tuple[Chunk, dict]) -> None:  # one chunk's d_uv rows
+            chunk, q = job
+            piece, scaled = chunk.piece, chunk.scaled
             moved = scaled @ d_control  # (c, 3)
             jl = q["jl"]
             along = jl[:, 0] * moved[:, 0, None] + jl[:, 1] * moved[:, 1, None] + jl[:, 2] * moved[:, 2, None]
             bt_d = along + np.sum((scaled.values * d_log_w[piece.columns])[:, :, None] * q["t"], axis=1)
-            d_uv[part] = -self._c_inverse(q, q["c_vec"] + bt_d)
+            d_uv[chunk.part] = -self._c_inverse(q, q["c_vec"] + bt_d)
+
+        compiled.each(back_substitute, zip(lin["parts"], terms))
         return d_control, d_log_w, d_uv
 
     def _chunk_schur(self, lin: dict, chunk: Chunk, damping: float, frozen: np.ndarray | None
