@@ -14,7 +14,7 @@ from psonurbs.fitting.parametrise import (
     parametrise_sphere,
     parametrise_torus,
 )
-from psonurbs.fitting.topology import LAYOUTS, choose_topology, layout_for, unsupported
+from psonurbs.fitting.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
 from psonurbs.geometry.net import NetLayout
 
 CLOSED = {
@@ -327,3 +327,18 @@ def test_only_the_sphere_layout_has_conditions():
     assert layout_for("sphere", (6, 5), (3, 3)).constraint_operator().shape == (12, 6 * 3 + 2)
     for name in ("open", "cylinder", "torus"):
         assert layout_for(name, (6, 5), (3, 3)).constraint_operator() is None
+
+
+def test_the_note_says_which_topology_was_kept_when_every_candidate_failed():
+    """``topology: auto`` keeps the least error when every candidate is suspect: the note
+    calls that one kept, not rejected, and the others rejected with their reasons."""
+    all_suspect = {"open": {"classical_error_relative": 2.35e-3, "rejected": "suspect: the net reaches 14 times"},
+                   "cylinder": {"classical_error_relative": 3.1e-3, "rejected": "suspect: it folds"},
+                   "sphere": {"rejected": "the data do not reach both poles"}}
+    note = topology_note("open", all_suspect)
+    assert note.startswith("topology auto: open (open 2.35e-03, kept as the least error: every candidate failed")
+    assert "open rejected" not in note and "(its own suspect: the net reaches 14 times)" in note
+    assert "cylinder rejected: suspect: it folds" in note and "sphere rejected: the data do not reach both poles" in note
+    fine = {"open": {"classical_error_relative": 1e-3}, "torus": {"classical_error_relative": 4e-3,
+                                                                  "rejected": "suspect: it flaps"}}
+    assert topology_note("open", fine) == "topology auto: open (open 1.00e-03, torus rejected: suspect: it flaps)"

@@ -55,7 +55,7 @@ from .robust import (
 )
 from .sampling import big_cloud_sample, every_foot_point, finished
 from .solve import RegularisedLeastSquares, weighted_rms
-from .topology import choose_topology, layout_for, parametrise_for
+from .topology import choose_topology, layout_for, parametrise_for, topology_note
 from .validation import Z, held_out_choice, paired_test, reach, swarm_points_of
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
@@ -307,9 +307,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
                      f"then {info['subsample']['final_rounds']} rounds of parameter correction on all")
     if scores is not None:
         info["topology_scores"] = scores
-        notes.append(f"topology auto: {topology} (" + ", ".join(
-            f"{name} {s['classical_error_relative']:.2e}" if "rejected" not in s else f"{name} rejected: {s['rejected']}"
-            for name, s in scores.items()) + ")")
+        notes.append(topology_note(topology, scores))
     notes += footprint_notes(face, len(points))
     metrics["outside_trim"] = int(face.points_outside)
     notes += [f"suspect fit: {warning}" for warning in checks.warnings]

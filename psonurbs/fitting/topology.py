@@ -139,3 +139,18 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
     pool = candidates or suspect
     best = min(pool, key=lambda t: (pool[t][0], list(LAYOUTS).index(t)))
     return best, pool[best][1], scores
+
+
+def topology_note(chosen: str, scores: dict) -> str:
+    """The fit's note on ``topology: auto``: each candidate's classical error or why it
+    was rejected. Where every candidate failed a self-check, the one kept (the least
+    error) is said to be kept, with what its check found."""
+    def entry(name: str, score: dict) -> str:
+        if "rejected" not in score:
+            return f"{name} {score['classical_error_relative']:.2e}"
+        if name == chosen:
+            return (f"{name} {score['classical_error_relative']:.2e}, kept as the least error: "
+                    f"every candidate failed (its own {score['rejected']})")
+        return f"{name} rejected: {score['rejected']}"
+
+    return f"topology auto: {chosen} (" + ", ".join(entry(name, s) for name, s in scores.items()) + ")"
