@@ -337,7 +337,7 @@ def test_the_note_says_which_topology_was_kept_when_every_candidate_failed():
                    "sphere": {"rejected": "the data do not reach both poles"}}
     note = topology_note("open", all_suspect)
     assert note.startswith("topology auto: open (open 2.35e-03, kept as the least error: every candidate failed")
-    assert "open rejected" not in note and "(its own suspect: the net reaches 14 times)" in note
+    assert "open rejected" not in note and "(its own: the net reaches 14 times)" in note
     assert "cylinder rejected: suspect: it folds" in note and "sphere rejected: the data do not reach both poles" in note
     fine = {"open": {"classical_error_relative": 1e-3}, "torus": {"classical_error_relative": 4e-3,
                                                                   "rejected": "suspect: it flaps"}}

@@ -149,8 +149,9 @@ def topology_note(chosen: str, scores: dict) -> str:
         if "rejected" not in score:
             return f"{name} {score['classical_error_relative']:.2e}"
         if name == chosen:
+            found = score["rejected"].removeprefix("suspect: ")
             return (f"{name} {score['classical_error_relative']:.2e}, kept as the least error: "
-                    f"every candidate failed (its own {score['rejected']})")
+                    f"every candidate failed a self-check (its own: {found})")
         return f"{name} rejected: {score['rejected']}"
 
     return f"topology auto: {chosen} (" + ", ".join(entry(name, s) for name, s in scores.items()) + ")"
