@@ -7,7 +7,7 @@ several relaxations of the mix.
 The cloud is fitted once as ``psonurbs fit`` fits it (``psonurbs.fitting.pipeline.fit_points``),
 and the inputs of its first polish (the one after the swarm) are kept; that polish is
 then run again for ``max(--rounds)`` rounds with each relaxation beta of
-:class:`psonurbs.fitting.polish.AndersonMixing` (``polish.RELAXATION``: the pipeline's), and the
+:class:`psonurbs.fitting.polish.AndersonMixing` (1: the pipeline's), and the
 table gives the rmse of the points it takes (a big cloud's subsample, weighted as in the
 fit) to the best surface within the first R rounds (the polish's result with
 ``polish_iterations`` R), relative to the cloud's bounding-box diagonal, and the seconds
@@ -16,6 +16,7 @@ of the whole run. One BLAS thread, as in a fit.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 
@@ -57,15 +58,16 @@ def trajectory(args: tuple, kwargs: dict, rounds: int, relaxation: float) -> tup
         errors.append(weighted_rms(found[1] ** 2, weights))
         return found
 
-    polish_module.closest_parameters, default = measured, polish_module.RELAXATION
-    polish_module.RELAXATION = relaxation
+    mixing = polish_module.AndersonMixing
+    polish_module.closest_parameters = measured
+    polish_module.AndersonMixing = functools.partial(mixing, relaxation=relaxation)
     try:
         start = time.perf_counter()
         layout, solver, points, uv, shape, _ = args
         polish_module.polish(layout, solver, points, uv, shape, rounds, **kwargs)
         return np.minimum.accumulate(errors), time.perf_counter() - start
     finally:
-        polish_module.closest_parameters, polish_module.RELAXATION = search, default
+        polish_module.closest_parameters, polish_module.AndersonMixing = search, mixing
 
 
 def main(argv=None) -> int:

@@ -77,12 +77,6 @@ def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
     return out
 
 
-# The polish's Anderson relaxation: 1, the plain mix. 2 converges faster where the polish
-# runs to its cap on real scans, but can throw a polished surface far from the truth (the
-# steep cliff of tests/test_fit.py with knots leaving wide end spans; README, Big clouds).
-RELAXATION = 1.0
-
-
 class AndersonMixing:
     """Anderson acceleration of a fixed-point iteration x <- G(x) (Walker & Ni 2011).
 
@@ -94,9 +88,11 @@ class AndersonMixing:
     result is unwrapped: the caller maps it back into the domain.
 
     With a ``relaxation`` beta the step is x_k + beta f_k - (dX + beta dF) c (dX the
-    differences of the iterates): beta 1 is the plain mix above; the polish takes
-    ``RELAXATION`` (``benchmarks/polish_rounds.py`` measures the error against rounds
-    for others).
+    differences of the iterates): beta 1 is the plain mix above, the polish's. Beta 2
+    converges faster where the polish runs to its cap on real scans, but can throw a
+    polished surface far from the truth (the steep cliff of tests/test_fit.py with knots
+    leaving wide end spans; README, Big clouds); ``benchmarks/polish_rounds.py``
+    measures the error against rounds for several.
     """
 
     def __init__(self, closed: tuple[bool, bool], depth: int = 5, relaxation: float = 1.0):
@@ -146,7 +142,7 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
     """
     rmse, best, best_uv, best_control = np.inf, None, uv, None
     uv = best_image = align_to_domain(uv, layout) if align or realign else uv
-    mixer, fit = AndersonMixing(layout.closed, relaxation=RELAXATION), least_squares_at(layout, solver)
+    mixer, fit = AndersonMixing(layout.closed), least_squares_at(layout, solver)
     for it in range(iterations + 1):
         control = fit(uv, shape, points, point_weights)
         surface = layout.surface(control, *shape)

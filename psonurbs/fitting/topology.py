@@ -38,6 +38,7 @@ LAYOUTS = {  # closed (u, v), poles
 MAX_GAP = 0.25  # widest empty arc (in turns) that a closed direction may have
 POLE_REACH = 0.15  # a sphere's data must come this close (in v) to each pole
 RIM_RATIO = 0.3  # a cylinder's ends must keep this share of its middle radius
+SUSPECT = "suspect: "  # a candidate rejected by the self-checks: its reason in ``topology_scores``
 
 
 def layout_for(topology: str, net_size, degrees) -> NetLayout:
@@ -135,7 +136,7 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
         warnings = check_fit(classical_surface(layout, on_sample, points[sample], config), points[sample]).warnings
         (suspect if warnings else candidates)[topology] = (error, par)
         if warnings:
-            scores[topology]["rejected"] = "suspect: " + "; ".join(warnings)
+            scores[topology]["rejected"] = SUSPECT + "; ".join(warnings)
     pool = candidates or suspect
     best = min(pool, key=lambda t: (pool[t][0], list(LAYOUTS).index(t)))
     return best, pool[best][1], scores
@@ -149,7 +150,7 @@ def topology_note(chosen: str, scores: dict) -> str:
         if "rejected" not in score:
             return f"{name} {score['classical_error_relative']:.2e}"
         if name == chosen:
-            found = score["rejected"].removeprefix("suspect: ")
+            found = score["rejected"].removeprefix(SUSPECT)
             return (f"{name} {score['classical_error_relative']:.2e}, kept as the least error: "
                     f"every candidate failed a self-check (its own: {found})")
         return f"{name} rejected: {score['rejected']}"
