@@ -132,7 +132,11 @@ STOPS = [pytest.param(signal.SIGINT, 130, "interrupted", id="SIGINT"),
 def interrupt(args: list[str], out: Path, wait_for: float,
               signum: int = signal.SIGINT) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-c", "from psonurbs.cli.main import main; main()", *args,
+    # Ctrl-C's handler, as Python installs it for a command started from a terminal (a shell
+    # without job control starts a background job, a test run under ``nohup ... &``, say,
+    # with SIGINT ignored, and its children would inherit that)
+    start = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    proc = subprocess.Popen([sys.executable, "-c", start + "from psonurbs.cli.main import main; main()", *args,
                              "-o", str(out), "-q"], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
