@@ -126,9 +126,12 @@ def test_a_batch_on_a_scheduler_writes_the_files_of_jobs_1(tmp_path, cluster, re
 def test_a_local_cluster_writes_the_files_of_jobs_1(tmp_path, reference):
     pytest.importorskip("distributed")
     clouds, jobs1 = reference
+    environment = dict(os.environ)
     result = run("fit", clouds, "-o", tmp_path / "local", *QUICK, "--scheduler", "local:2")
     assert result.exit_code == 2, result.stderr
     assert_same_outputs(jobs1, tmp_path / "local")
+    # the nannies set their workers' variables (OMP_NUM_THREADS=1, ...) here to spawn them
+    assert dict(os.environ) == environment
 
 
 def long_clouds(directory: Path, count: int) -> Path:

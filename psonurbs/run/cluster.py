@@ -14,12 +14,17 @@ thousands of scans is read as the cluster consumes it, not all at once.
   (``distributed.scheduler.allowed-failures``; ``local:N`` sets it to 0).
 * Ctrl-C and SIGTERM cancel every future and close the connection (and a local
   cluster); nothing is half-written since the files are written here, each atomically.
+* A local cluster's nannies put their workers' variables (one BLAS/OpenMP thread, ...:
+  ``distributed.nanny.pre-spawn-environ``) into this process's environment to spawn them,
+  and leave them there; the environment is given back as it was once the cluster is
+  closed, so that fits run here afterwards keep their threads.
 
 Needs the optional extra ``dask`` (``pip install 'psonurbs[dask]'``).
 """
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import sys
 import uuid
@@ -84,7 +89,7 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
     distributed = _distributed()
     import dask
 
-    cluster = None
+    cluster, environment = None, dict(os.environ)
     try:
         if scheduler.local_workers:
             # one retry is ours (cluster_run), none the scheduler's; the workers start with
@@ -101,6 +106,7 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
     except (OSError, TimeoutError) as e:
         if cluster is not None:
             cluster.close()
+            _restore(environment)
         raise ConfigError(f"--scheduler {scheduler.text}: cannot reach the scheduler ({_reason(e)})") from None
     try:
         yield client
@@ -110,6 +116,17 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close()
+            _restore(environment)
+
+
+def _restore(environment: dict[str, str]) -> None:
+    """``os.environ`` back to ``environment``: the variables set since removed, the ones
+    changed given their values back."""
+    for name in set(os.environ) - set(environment):
+        del os.environ[name]
+    for name, value in environment.items():
+        if os.environ.get(name) != value:
+            os.environ[name] = value
 
 
 @contextlib.contextmanager
