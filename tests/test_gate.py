@@ -173,6 +173,22 @@ def test_stop_signal_exits_with_its_code_and_leaves_no_partial_file(tmp_path, si
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("signum, code, word", STOPS)
+def test_stop_signal_while_the_command_line_loads_is_one_line_and_its_code(tmp_path, signum, code, word):
+    """The console script (``cli/launch.py``), stopped 50 ms in: while numpy and scipy load
+    (half a second or more), before the command line handles signals itself."""
+    out = tmp_path / "out"
+    script = ("import os, signal, sys, threading; signal.signal(signal.SIGINT, signal.default_int_handler); "
+              f"sys.argv = ['psonurbs', 'fit', {str(SAMPLES / 'franke_noisy.ply')!r}, '-o', {str(out)!r}, '-q']; "
+              f"threading.Timer(0.05, os.kill, (os.getpid(), {int(signum)})).start(); "
+              "from psonurbs.cli.launch import main; main()")
+    result = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == code, result.stderr
+    assert result.stderr == f"psonurbs: {word}\n"
+    assert not out.exists()
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("signum, code, word", STOPS)
 def test_stop_signal_stops_the_worker_pool(tmp_path, signum, code, word):
     pytest.importorskip("psonurbs.fitting.pipeline")
     clouds = tmp_path / "clouds"
