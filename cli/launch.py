@@ -1,10 +1,11 @@
 """The ``psonurbs`` console script: the command line, stoppable while it loads.
 
-Loading the command line (numpy, scipy and the fitting's modules) takes most of a second. A Ctrl-C
-or SIGTERM in that time ends the command as one in the middle of a fit does, with one
-line on stderr and its exit code (130 interrupted, 143 terminated), instead of Python's
-traceback of the import it cut short. Nothing has been read or written by then. A signal
-the shell started the command with ignored (a background job) stays ignored.
+Loading the command line (numpy, scipy and the fitting's modules) takes most of a
+second. A Ctrl-C or SIGTERM in that time ends the command as one in the middle of a fit
+does, with one line on stderr and its exit code (130 interrupted, 143 terminated),
+instead of Python's traceback of the import it cut short. Nothing has been read or
+written by then. A signal the shell started the command with ignored (a background job)
+stays ignored.
 """
 from __future__ import annotations
 
