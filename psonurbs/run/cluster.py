@@ -106,7 +106,7 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
     except (OSError, TimeoutError) as e:
         if cluster is not None:
             cluster.close()
-            _restore(environment)
+        _restore(environment)  # a cluster that failed to start may have spawned some workers
         raise ConfigError(f"--scheduler {scheduler.text}: cannot reach the scheduler ({_reason(e)})") from None
     try:
         yield client
@@ -116,7 +116,7 @@ def _connect(scheduler: Scheduler) -> Iterator[object]:
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close()
-            _restore(environment)
+        _restore(environment)
 
 
 def _restore(environment: dict[str, str]) -> None:
