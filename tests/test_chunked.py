@@ -153,11 +153,9 @@ def test_refinement_step_is_the_dense_damped_gauss_newton_step_in_any_chunks(lay
 
 def test_foot_points_of_points_that_stopped_moving_are_not_searched_again(monkeypatch):
     """Started at their foot points, the points take one Newton step each and drop out
-    (only those whose step is still above the tolerance go on: the search stops a point
-    once its last two Newton steps predict a next one within the tolerance, which leaves
-    it within a few tolerances); of a mixed set only the points still moving take
-    further steps. (The numpy search, whose steps can be counted; the compiled one finds
-    the same foot points.)"""
+    (only those whose step is still above the tolerance, a few at the floor of rounding,
+    go on); of a mixed set only the points still moving take further steps. (The numpy
+    search, whose steps can be counted; the compiled one finds the same foot points.)"""
     monkeypatch.setattr(projection, "COMPILED", False)
     layout = NetLayout((5, 5), (3, 3))
     i, j = np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5), indexing="ij")
@@ -165,9 +163,9 @@ def test_foot_points_of_points_that_stopped_moving_are_not_searched_again(monkey
     rng = np.random.default_rng(7)
     points = surface.evaluate(*rng.uniform(0.1, 0.9, (2, 200))) + 0.01 * rng.normal(size=(200, 3))
     foot, dist = projection.closest_parameters(surface, points)
-    left = np.abs(projection.foot_point_step(surface, points, foot, (False, False)).step).max(axis=1)
-    still = int(np.sum(left > projection.PARAMETER_TOLERANCE))
-    assert still < 50 and left.max() < 10 * projection.PARAMETER_TOLERANCE
+    still = int(np.sum(np.abs(projection.foot_point_step(surface, points, foot, (False, False))).max(axis=1)
+                       > projection.PARAMETER_TOLERANCE))
+    assert still < 20
     stepped = []
     step = projection.foot_point_step
     monkeypatch.setattr(projection, "foot_point_step", lambda s, p, uv, c: stepped.append(len(p)) or step(s, p, uv, c))

@@ -83,27 +83,6 @@ def fitted_surface(name: str, rng: np.random.Generator):
     return layout.surface(control, weights), uv, points
 
 
-@pytest.mark.parametrize("name", sorted(LAYOUTS))
-def test_the_stopping_rules_find_the_foot_points_of_a_search_run_to_rounding(name, search, monkeypatch):
-    """The search stops a point at a step within the tolerance (untried) or when its last
-    two full Newton steps predict a next one within it; run instead until no halving of
-    a step brings a point closer (the tolerance 0 turns both rules off; the same cap of
-    iterations, which a point at a kink of a degree-1 direction can reach), it finds the
-    same foot points: the distances to 1e-12 of the surface's size, the parameters to
-    1e-8 (more along a flat minimum)."""
-    rng = np.random.default_rng(12)
-    surface, uv, points = fitted_surface(name, rng)
-    points = points + 0.02 * rng.normal(size=points.shape)
-    start = np.clip(uv + 0.03 * rng.normal(size=uv.shape), 0.0, 1.0)
-    foot, dist = closest_parameters(surface, points, start.copy())
-    monkeypatch.setattr(projection, "PARAMETER_TOLERANCE", 0.0)
-    exact_foot, exact_dist = closest_parameters(surface, points, start.copy())
-    size = float(np.linalg.norm(np.ptp(points, axis=0)))
-    np.testing.assert_allclose(dist, exact_dist, rtol=0, atol=1e-12 * size)
-    far = seam_difference(foot, exact_foot, (surface.closed_u, surface.closed_v)).max(axis=1) > 1e-8
-    assert far.sum() <= 3, far.sum()  # points on a flat minimum, or a pole's degenerate u
-
-
 @needs_numba
 @pytest.mark.parametrize("name", sorted(LAYOUTS))
 def test_compiled_search_finds_the_numpy_foot_points(name, monkeypatch):

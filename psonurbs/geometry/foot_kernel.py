@@ -182,16 +182,14 @@ def dot(a, b):
 
 @kernel(inline=True)
 def newton_step(jet, point, u, v, closed_u, closed_v, residual, step):
-    """step[0:2] = the bounded Newton step of ``foot_point_step`` for one point; True if
-    it is the exact Newton step (not the Gauss-Newton fallback)."""
+    """step[0:2] = the bounded Newton step of ``foot_point_step`` for one point."""
     for k in range(3):
         residual[k] = jet[0, k] - point[k]
     su, sv, r = jet[1], jet[2], residual
     g0, g1 = dot(su, r), dot(sv, r)
     gauss0, gauss1, gauss2 = dot(su, su), dot(su, sv), dot(sv, sv)
     newton0, newton1, newton2 = gauss0 + dot(r, jet[3]), gauss1 + dot(r, jet[4]), gauss2 + dot(r, jet[5])
-    exact = newton0 > 0 and newton0 * newton2 - newton1 * newton1 > 0
-    if exact:
+    if newton0 > 0 and newton0 * newton2 - newton1 * newton1 > 0:
         h0, h1, h2 = newton0, newton1, newton2
     else:
         h0, h1, h2 = gauss0, gauss1, gauss2
@@ -211,7 +209,6 @@ def newton_step(jet, point, u, v, closed_u, closed_v, residual, step):
         step[0] = -g0 / h0
     elif not held_v:
         step[1] = -g1 / h2
-    return exact
 
 
 @kernel
@@ -235,16 +232,12 @@ def foot_points(tu, tv, inverse_u, inverse_v, degree_u, degree_v, nv, aw, w, clo
             surface_jet(tu, tv, inverse_u, inverse_v, degree_u, degree_v, nv, aw, w, u, v, 1, bu, bv, quotients,
                         homogeneous, jet)
         dist2 = distance2(jet, point)
-        previous = 0.0  # the size of the last full exact Newton step (0: none)
         for iteration in range(iterations):
             if iteration > 0:
                 surface_jet(tu, tv, inverse_u, inverse_v, degree_u, degree_v, nv, aw, w, u, v, 3, bu, bv, quotients,
                             homogeneous, jet)
-            exact = newton_step(jet, point, u, v, closed_u, closed_v, residual, step)
-            size = max(abs(step[0]), abs(step[1]))
-            if not size > tolerance:
-                break  # at its foot point to within the tolerance
-            moved, full = False, False
+            newton_step(jet, point, u, v, closed_u, closed_v, residual, step)
+            moved = False
             for halving in range(halvings):
                 scale = 0.5 ** halving
                 trial_u, trial_v = wrap(u + scale * step[0], closed_u), wrap(v + scale * step[1], closed_v)
@@ -254,14 +247,8 @@ def foot_points(tu, tv, inverse_u, inverse_v, degree_u, degree_v, nv, aw, w, clo
                             quotients, homogeneous, trial_jet)
                 trial_d2 = distance2(trial_jet, point)
                 if trial_d2 < dist2:
-                    u, v, dist2, moved, full = trial_u, trial_v, trial_d2, True, halving == 0
+                    u, v, dist2, moved = trial_u, trial_v, trial_d2, True
                     break
-            if not moved:
+            if not moved or not max(abs(step[0]), abs(step[1])) > tolerance:
                 break
-            if exact and full:
-                if size * size * size <= tolerance * previous * previous:
-                    break  # the next step, by the last two, would be within the tolerance
-                previous = size
-            else:
-                previous = 0.0
         out_uv[i, 0], out_uv[i, 1], out_dist[i] = u, v, np.sqrt(dist2)

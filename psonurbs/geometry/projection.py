@@ -9,21 +9,13 @@ steps H d = -g are taken for all points at once, with
 r = S - x (Gauss-Newton's H without the r terms where the full H is not positive
 definite). A parameter on an open edge whose descent leads off the domain is held on
 the edge and the step taken in the other one alone (an active set), and a step is
-halved until it brings the point closer. Closed directions wrap. A point is done when
-its step is within ``PARAMETER_TOLERANCE`` (it is not tried: at the foot point a step
-of rounding size cannot show a smaller distance, and its halvings were most of a
-converged search's evaluations), or when its last two steps, both full exact Newton
-steps (p, then s), predict a next one within the tolerance: Newton converges
-quadratically, s = C p^2, so the next is C s^2 = s^3 / p^2, with the constant C of the
-point's own surface and scale (the third step most points took, saved).
+halved until it brings the point closer. Closed directions wrap.
 
 Two implementations of the same search: :func:`newton_foot_points` (numpy, every point's
 arrays at once: the reference) and its compiled twin in :mod:`.foot_kernel` (point by
 point, no derivative arrays; the same numbers), used where :data:`COMPILED`.
 """
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -103,49 +95,32 @@ def compiled_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarr
 
 def newton_foot_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, closed: tuple[bool, bool],
                        iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Bounded Newton steps with halving from ``uv`` until every point stops moving.
-
-    A point is done when its step is within ``PARAMETER_TOLERANCE`` (not tried), when no
-    halving of it brings the point closer, or when two full exact Newton steps in a row,
-    p then s, predict a next one within the tolerance (quadratic convergence,
-    s = C p^2: the next is C s^2 = s^3 / p^2)."""
+    """Bounded Newton steps with halving from ``uv`` until every point stops moving."""
     uv = keep_in_domain(uv, closed)
     dist2 = np.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, axis=1)
     active = np.arange(len(points))
-    previous = np.zeros(len(points))  # the size of each point's last full exact step (0: none)
     for _ in range(iterations):
-        step, exact = foot_point_step(surface, points[active], uv[active], closed)
-        size = np.abs(step).max(axis=1)
-        active, step, exact, size = (x[size > PARAMETER_TOLERANCE] for x in (active, step, exact, size))
-        moved, full = np.zeros(len(active), bool), np.zeros(len(active), bool)
+        step = foot_point_step(surface, points[active], uv[active], closed)
+        moved = np.zeros(len(active), bool)
         for halving in range(LINE_SEARCH_HALVINGS):
             todo = np.flatnonzero(~moved)
-            if len(todo) == 0:
-                break
             trial = keep_in_domain(uv[active[todo]] + 0.5 ** halving * step[todo], closed)
             trial_d2 = np.sum((surface.evaluate(trial[:, 0], trial[:, 1]) - points[active[todo]]) ** 2, axis=1)
             better = trial_d2 < dist2[active[todo]]
             uv[active[todo[better]]], dist2[active[todo[better]]] = trial[better], trial_d2[better]
             moved[todo[better]] = True
-            full[todo[better]] = halving == 0
-        newton = exact & full
-        done = newton & (size ** 3 <= PARAMETER_TOLERANCE * previous[active] ** 2)
-        previous[active] = np.where(newton, size, 0.0)
-        active = active[moved & ~done]
+            if moved.all():
+                break
+        # a point is done once it stops moving or its step falls below PARAMETER_TOLERANCE
+        active = active[moved & (np.abs(step).max(axis=1) > PARAMETER_TOLERANCE)]
         if len(active) == 0:
             break
     return uv, np.sqrt(dist2)
 
 
-class NewtonStep(NamedTuple):
-    step: np.ndarray  # (N, 2) the bounded step (du, dv)
-    exact: np.ndarray  # (N,) True where it is the exact Newton step, False for the Gauss-Newton one
-
-
 def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,
-                    closed: tuple[bool, bool]) -> NewtonStep:
-    """One bounded Newton step (du, dv) per point towards its foot point, and whether it
-    is the exact Newton step (N,) (else the Gauss-Newton one: the Hessian not convex)."""
+                    closed: tuple[bool, bool]) -> np.ndarray:
+    """One bounded Newton step (du, dv) per point towards its foot point."""
     s, su, sv, suu, suv, svv = surface.derivatives(uv[:, 0], uv[:, 1], second=True)
     r = s - points
     g = np.stack([np.sum(su * r, 1), np.sum(sv * r, 1)], axis=1)
@@ -168,4 +143,4 @@ def foot_point_step(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray,
     only_u, only_v = ~held[:, 0] & held[:, 1], held[:, 0] & ~held[:, 1]
     step[only_u, 0] = -g[only_u, 0] / h[only_u, 0]
     step[only_v, 1] = -g[only_v, 1] / h[only_v, 2]
-    return NewtonStep(step, convex)
+    return step
