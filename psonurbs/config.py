@@ -159,6 +159,7 @@ BOUNDS: dict[str, Bound] = {
     "tessellation": Bound(10_000, "mesh vertices along one direction"),
     "swarm_points": Bound(100_000, "points the swarm's fitness sees"),
     "polish_iterations": Bound(10_000, "rounds of parameter correction"),
+    "refine_iterations": Bound(10_000, "Levenberg-Marquardt steps of the joint refinement"),
     "swarm.particles": Bound(10_000, "particles of the swarm"),
     "swarm.iterations": Bound(100_000, "generations of the swarm, rows of the error curve"),
     "swarm.seed": Bound(2**64 - 1, "a 64-bit seed"),
@@ -231,6 +232,8 @@ class FitConfig:
         or by the plain fit error on the points they were fitted to (false).
     refine: after the polish, refine control points, weights and parameters jointly
         (Levenberg-Marquardt), then polish again.
+    refine_iterations: at most this many Levenberg-Marquardt steps of that refinement
+        (>= 0); it stops sooner once a step lowers its objective by less than 1e-6.
     robust: gross outliers judged locally before the fit (far from the surface their
         neighbours describe, :mod:`psonurbs.fitting.outliers`) and a robust loss in every
         solve (:mod:`psonurbs.fitting.robust`); the metrics still count every point. The
@@ -255,6 +258,7 @@ class FitConfig:
     min_knot_gap: float = 0.2
     cross_validation: bool = True
     refine: bool = True
+    refine_iterations: int = 12
     robust: bool = True
     parametrisation: str = "auto"
     trim: str | bool = "auto"
@@ -294,6 +298,8 @@ class FitConfig:
         put("swarm_points", _int("swarm_points", self.swarm_points, minimum=MIN_SWARM_POINTS,
                                  what=f"an integer >= {MIN_SWARM_POINTS}"))
         put("polish_iterations", _int("polish_iterations", self.polish_iterations, minimum=0,
+                                      what="an integer >= 0"))
+        put("refine_iterations", _int("refine_iterations", self.refine_iterations, minimum=0,
                                       what="an integer >= 0"))
         put("tessellation", _pair("tessellation", self.tessellation,
                                   lambda v: _int("tessellation", v, minimum=2, what=""),

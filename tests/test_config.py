@@ -80,8 +80,8 @@ def test_to_dict_has_yaml_shape_and_round_trips():
     d = c.to_dict()
     assert list(d) == ["orders", "net_size", "topology", "strategy", "swarm", "smoothing",
                        "swarm_points", "polish_iterations", "tessellation", "weight_bounds",
-                       "min_knot_gap", "cross_validation", "refine", "robust", "parametrisation",
-                       "trim"]
+                       "min_knot_gap", "cross_validation", "refine", "refine_iterations", "robust",
+                       "parametrisation", "trim"]
     assert d["orders"] == [4, 4] and d["net_size"] == [8, 9]
     assert d["swarm"] == {"particles": 40, "iterations": 300, "inertia": 0.7, "c1": 1.5,
                           "c2": 1.5, "seed": 3}
@@ -169,6 +169,7 @@ def test_every_sample_config_loads(path):
     ("swarm_points: 0\n", "cfg.yaml: config key 'swarm_points': expected an integer >= 16, got 0"),
     ("swarm_points: 15\n", "cfg.yaml: config key 'swarm_points': expected an integer >= 16, got 15"),
     ("polish_iterations: -1\n", "cfg.yaml: config key 'polish_iterations': expected an integer >= 0"),
+    ("refine_iterations: -1\n", "cfg.yaml: config key 'refine_iterations': expected an integer >= 0"),
     ("tessellation: [1, 10]\n", "cfg.yaml: config key 'tessellation': expected a list of 2 integers >= 2"),
     ("weight_bounds: [1.5, 5]\n", "cfg.yaml: config key 'weight_bounds': expected [lo, hi] with "
                                   "0 < lo <= 1 <= hi, got [1.5, 5.0]"),

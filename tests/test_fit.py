@@ -75,6 +75,18 @@ def test_quarter_cylinder_refinement_moves_towards_the_conic(quarter_fit):
     np.testing.assert_allclose(arc_invariants(res.surface), S2, atol=1e-2)
 
 
+def test_the_refinement_takes_at_most_refine_iterations_steps(quarter_fit):
+    """The joint refinement's steps are capped by ``refine_iterations``; with none it
+    cannot move the weights, and the conic is not found."""
+    pts, res = quarter_fit
+    assert 0 < res.info["refine_iterations"] <= 12
+    capped = fit_points(pts, config(orders=[3, 2], net_size=[3, 2], refine_iterations=2))
+    assert 0 < capped.info["refine_iterations"] <= 2
+    none = fit_points(pts, config(orders=[3, 2], net_size=[3, 2], refine_iterations=0))
+    assert none.info["refine_iterations"] == 0
+    assert none.metrics["rmse"] > 100 * res.metrics["rmse"]
+
+
 def test_quarter_cylinder_weight_invariant_is_exactly_the_quarter_circle():
     """Exact-conic recovery: with the arc's ends in the data (a 21 x 11 grid over angle and
     height, shuffled), the fitted rational quadratic is the quarter circle itself, its

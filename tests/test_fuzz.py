@@ -57,7 +57,8 @@ def yaml_values(depth: int = 2):
 
 
 KEYS = ["orders", "net_size", "topology", "strategy", "smoothing", "swarm_points", "polish_iterations",
-        "tessellation", "weight_bounds", "min_knot_gap", "cross_validation", "refine", "remove_outliers",
+        "tessellation", "weight_bounds", "min_knot_gap", "cross_validation", "refine", "refine_iterations",
+        "remove_outliers",
         "robust", "swarm", "swarm_x", "Orders", "1"]
 SWARM_KEYS = ["particles", "iterations", "inertia", "c1", "c2", "seed", "particle"]
 

@@ -184,7 +184,8 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     if config.refine:
         searched = np.any(shape.weights != 1.0)  # the weights already free: a swarm's particle, not unit weights
         control, shape, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, shape,
-                                                          np.log(config.weight_bounds), point_weights=c)
+                                                          np.log(config.weight_bounds), config.refine_iterations,
+                                                          point_weights=c)
         refined = anchored(layout, solver, points, uv, control, shape, config.polish_iterations, c)
         before, after = closest_parameters(surface, points)[1], closest_parameters(refined, points)[1]
         kept = pays_for_weights(before, after, layout.n_free, c) or \
