@@ -273,3 +273,28 @@ def test_error_split_puts_the_error_of_a_surface_past_its_data_past_the_data(tmp
     assert 0.0 < row["truth_rms_over_data"] < 0.01 * 0.15
     # samples at x = 1 + t lie t from the truth: rms over x in [0, 2] of max(x - 1, 0), / diagonal
     assert row["truth_rms"] == pytest.approx(np.sqrt(1.0 / 6.0) / np.sqrt(2.0), rel=0.01)
+
+
+def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
+    """benchmarks/stability.py: the cloud itself (draw 0) and each perturbed copy fitted by
+    the installed command with the config and the added keys; one row each, the spread."""
+    stability = load("bench_stability", REPO / "benchmarks" / "stability.py")
+    rng = np.random.default_rng(3)
+    uv = rng.random((300, 2))
+    cloud = tmp_path / "sheet.xyz"
+    np.savetxt(cloud, np.column_stack([uv, 0.1 * np.sin(3 * uv[:, 0])]))
+    config = tmp_path / "c.yaml"
+    config.write_text("net_size: [5, 5]\norders: [3, 3]\npolish_iterations: 3\n")
+    out = tmp_path / "out"
+    assert stability.main([str(cloud), "--config", str(config), "--draws", "1", "--out", str(out),
+                           "--set", "swarm={particles: 2, iterations: 2}", "--set", "refine=false"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and line[2].isdigit()]
+    assert [row.split(" | ")[0] for row in rows] == ["| 0", "| 1"]
+    assert all(row.split(" | ")[4] == "no" for row in rows)  # refine: false reached the fit
+    written = (out / "config.yaml").read_text()
+    assert "refine: false" in written and "particles: 2" in written and "polish_iterations: 3" in written
+    moved = np.loadtxt(out / "draw1" / "sheet.xyz")
+    original = np.loadtxt(cloud)
+    assert 0 < np.abs(moved - original).max() < 1e-10
+    with pytest.raises(SystemExit):
+        stability.config_with(config, ["refine"], tmp_path)
