@@ -36,7 +36,6 @@ import yaml
 
 from psonurbs.formats.clouds import read_cloud
 
-REPO = Path(__file__).resolve().parents[1]
 COLUMNS = ["draw", "rmse / diagonal", "polish rounds", "refine steps", "refined", "smoothing", "swarm kept", "seconds"]
 
 
