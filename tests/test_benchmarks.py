@@ -298,3 +298,26 @@ def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
     assert 0 < np.abs(moved - original).max() < 1e-10
     with pytest.raises(SystemExit):
         stability.config_with(config, ["refine"], tmp_path)
+
+
+def test_knot_headroom_reads_the_warp_of_a_net_off_its_rows(monkeypatch):
+    """benchmarks/knot_headroom.py: a net whose control rows sit at the Greville abscissae
+    of its knots (a surface of uniform speed) has no warp in x or y (1); moving the u rows
+    so that one inner gap is a third as wide and another twice as wide gives 6."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports the case generators beside it
+    headroom = load("bench_knot_headroom", REPO / "benchmarks" / "knot_headroom.py")
+    from psonurbs.geometry.basis import clamped_knots
+    knots = clamped_knots(8, 3)  # 5 uniform spans
+    g = headroom.greville(knots, 3)
+    assert g == pytest.approx([0.0, 1 / 15, 3 / 15, 6 / 15, 9 / 15, 12 / 15, 14 / 15, 1.0])
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    net = np.stack([uu, 2.0 * vv, np.sin(uu)], axis=-1)
+    surface = {"control_points": net.tolist(), "knots_u": knots.tolist(), "knots_v": knots.tolist(),
+               "degree_u": 3, "degree_v": 3}
+    assert headroom.warp(surface) == pytest.approx((1.0, 1.0))
+    rows = g.copy()
+    rows[3] = rows[2] + (rows[3] - rows[2]) / 3  # the gap 2-3 a third as wide ...
+    rows[4] = rows[5] - 2 * (rows[5] - rows[4])  # ... the gap 4-5 twice as wide
+    net[..., 0] = rows[:, None]
+    surface["control_points"] = net.tolist()
+    assert headroom.warp(surface) == pytest.approx((6.0, 1.0))
