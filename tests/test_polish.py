@@ -133,3 +133,53 @@ def test_a_straight_edge_puts_the_points_past_its_line_on_the_domain_edge():
         assert np.sum(out[:, k] == 0.0) > 1 and np.sum(out[:, k] == 1.0) > 1, k  # the extreme: 1
         inner = (out[:, k] > 0.0) & (out[:, k] < 1.0)
         np.testing.assert_allclose(out[inner, k], (uv[inner, k] - 0.1) / 0.8, atol=0.01)
+
+
+def scripted_polish(monkeypatch, errors: list[float], realign: bool, iterations: int = 20):
+    """Run :func:`polish` on a layout without edges whose rounds measure ``errors`` in
+    turn (a constant error after the list ends); returns the rounds taken and the round
+    whose surface was kept."""
+    import types
+
+    from psonurbs.fitting import polish as module
+    rounds = iter(range(10 ** 6))
+
+    def solve_at(layout, solver):
+        return lambda uv, shape, points, weights: np.array([next(rounds)])  # the round's number as "control"
+
+    def foot_points(surface, points, uv):
+        k = int(surface[0])
+        return uv, np.full(len(points), errors[min(k, len(errors) - 1)])
+
+    monkeypatch.setattr(module, "least_squares_at", solve_at)
+    monkeypatch.setattr(module, "closest_parameters", foot_points)
+    layout = types.SimpleNamespace(closed=(False, False), bounded=(False, False),
+                                   surface=lambda control, *shape: control)
+    uv = np.random.default_rng(0).random((5, 2))
+    result = module.polish(layout, None, np.zeros((5, 3)), uv, (None,), iterations, realign=realign)
+    return result.rounds, int(result.control[0])
+
+
+def test_a_polish_from_foot_points_stops_at_its_first_round_without_progress(monkeypatch):
+    """Without re-alignment the alternation's error only falls: a plain round that
+    lowers it by less than GAIN (here: not at all) ends the polish, whatever follows."""
+    rounds, kept = scripted_polish(monkeypatch, [1.0, 1.0, 0.5], realign=False)
+    assert kept == 0 and rounds == 1
+    # a mixed round without progress restarts plainly from the best instead
+    rounds, kept = scripted_polish(monkeypatch, [1.0, 0.5, 0.5, 0.1], realign=False)
+    assert kept == 3
+    # re-aligned, the same pause is taken on
+    rounds, kept = scripted_polish(monkeypatch, [1.0, 1.0, 0.5], realign=True)
+    assert kept == 2
+
+
+def test_a_realigning_polish_goes_on_through_a_pause_of_its_error(monkeypatch):
+    """Re-aligned every round, the points leave their foot points and the error can
+    pause: up to PATIENCE plain rounds without progress are taken on, the best kept."""
+    from psonurbs.fitting.polish import PATIENCE
+    pause = [1.0] * PATIENCE  # the first solve, then PATIENCE - 1 rounds no better
+    rounds, kept = scripted_polish(monkeypatch, pause + [0.5, 0.5], realign=True)
+    assert kept == PATIENCE
+    # one round more without progress than PATIENCE allows ends it at the first solve
+    rounds, kept = scripted_polish(monkeypatch, [1.0] * (PATIENCE + 2) + [0.5], realign=True)
+    assert kept == 0 and rounds == PATIENCE + 1
