@@ -121,10 +121,6 @@ class AndersonMixing:
         return g + over * f - ((d_g + over * d_f) @ c).reshape(g.shape)
 
 
-GAIN = 1e-4  # the least relative fall of the error a round must bring to count as progress
-PATIENCE = 3  # plain rounds in a row without it before a re-aligning polish stops
-
-
 class Polished(NamedTuple):
     control: np.ndarray  # (n_free, 3) the best round's free control points
     surface: object  # their NurbsSurface
@@ -139,14 +135,6 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
     the parameters Anderson-mixed (restarted plainly from the best when a mixed round
     does not lower the error). ``point_weights`` (N,) weigh the solve and the error.
 
-    A plain round that lowers the error by less than ``GAIN`` ends the polish: from foot
-    points the alternation lowers the error monotonically, so it has converged (and
-    stopping there keeps the leave-one-out smoothing off fully converged parameters,
-    README). With ``realign`` every round moves the points off their foot points, and
-    the error can pause for a round before it falls again: up to ``PATIENCE`` such
-    rounds in a row are taken on from their own image (the best round is kept), so
-    that a first round within rounding of the bound does not decide the polish.
-
     The data's extent is first aligned onto the domain (``align``), with ``realign`` at
     every round. The pipeline aligns before each of its polishes, foot points of the
     previous one included (undoing that one's drift of the edges; without it bunny_front's
@@ -158,24 +146,18 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
     rmse, best, best_uv, best_control = np.inf, None, uv, None
     uv = best_image = align_to_domain(uv, layout) if align or realign else uv
     mixer, fit = AndersonMixing(layout.closed), least_squares_at(layout, solver)
-    stalled, patience = 0, PATIENCE if realign else 0  # plain rounds in a row without progress; how many
     for it in range(iterations + 1):
         control = fit(uv, shape, points, point_weights)
         surface = layout.surface(control, *shape)
         new_uv, dist = closest_parameters(surface, points, uv)
         new_rmse = weighted_rms(dist ** 2, point_weights)
-        image = align_to_domain(new_uv, layout, support=False) if realign else new_uv
-        if new_rmse >= rmse * (1.0 - GAIN):
-            if mixer.mixing:  # a mixed round: plainly from the best again
-                uv = best_image
-            elif stalled < patience:  # a plain one: on from it, plainly
-                stalled, uv = stalled + 1, image
-            else:
+        if new_rmse >= rmse * (1.0 - 1e-4):
+            if not mixer.mixing:
                 break
             mixer.reset()
+            uv = best_image
             continue
-        stalled = 0
         rmse, best, best_uv, best_control = new_rmse, surface, new_uv, control
-        best_image = image
+        best_image = align_to_domain(new_uv, layout, support=False) if realign else new_uv
         uv = keep_in_domain(mixer.next(uv, best_image), layout.closed)
     return Polished(best_control, best, best_uv, it)
