@@ -67,6 +67,26 @@ def warp(surface: dict) -> tuple[float, float]:
     return spreads[0], spreads[1]
 
 
+def truths(case, cases_dir: Path, results: Path, seed: int, scorer) -> dict | str:
+    """truth_rms of the classical and the swarm's fit of ``case`` and of the classical fit
+    of its noise-free twin (a noise-free cloud is its own); a line saying which fit
+    failed, if one did."""
+    runs = [("classical", case, "classical"), ("swarm", case, "swarm")]
+    write(case, cases_dir, seed)
+    if case.noise:
+        clean = dataclasses.replace(case, name=f"{case.name}_noise_free", noise=0.0)
+        write(clean, cases_dir, seed)
+        runs.append(("noise-free", clean, "classical"))
+    truth = {}
+    for key, each, variant in runs:
+        r = fit_and_score(each.name, variant, cases_dir, results, scorer=scorer)
+        if "error" in r:
+            return f"failed ({key}): {r['error']}"
+        truth[key] = r["truth_rms"]
+    truth.setdefault("noise-free", truth["classical"])
+    return truth
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", nargs="*", help=f"these clouds (default: {' '.join(LOCALISED)})")
@@ -91,26 +111,17 @@ def main(argv=None) -> int:
     print("|" + "---|" * len(header))
     for name in names:
         case = known[name]
-        clean = dataclasses.replace(case, name=f"{name}_noise_free", noise=0.0)
-        truth = {}
-        for variant, each in (("classical", case), ("swarm", case), ("classical", clean)):
-            write(each, cases_dir, args.seed)
-            if each is clean and case.noise == 0:
-                truth["noise-free"] = truth["classical"]  # the same cloud
-                continue
-            r = fit_and_score(each.name, variant, cases_dir, results, scorer=scorer)
-            if "error" in r:
-                print(f"| {name} | failed ({variant}): {r['error']} |" + " |" * (len(header) - 2), flush=True)
-                break
-            truth["noise-free" if each is clean else variant] = r["truth_rms"]
-        else:
-            fitted = json.loads((results / "classical" / name / f"{name}.json").read_text())
-            spread_u, spread_v = warp(fitted["surface"])
-            t, t0 = truth["classical"], truth["noise-free"]
-            floor = float(np.sqrt(max(0.0, 1.0 - (t0 / t) ** 2))) if t > 0 else None
-            row = [name, cell(case.noise), cell(t), cell(t0), f"{floor:.2f}", cell(truth["swarm"]),
-                   f"{truth['swarm'] / t:.2f}", cell(spread_u), cell(spread_v)]
-            print("| " + " | ".join(row) + " |", flush=True)
+        truth = truths(case, cases_dir, results, args.seed, scorer)
+        if isinstance(truth, str):
+            print(f"| {name} | {truth} |" + " |" * (len(header) - 2), flush=True)
+            continue
+        fitted = json.loads((results / "classical" / name / f"{name}.json").read_text())
+        spread_u, spread_v = warp(fitted["surface"])
+        t, t0 = truth["classical"], truth["noise-free"]
+        floor = f"{np.sqrt(max(0.0, 1.0 - (t0 / t) ** 2)):.2f}" if t > 0 else "-"
+        row = [name, cell(case.noise), cell(t), cell(t0), floor, cell(truth["swarm"]),
+               f"{truth['swarm'] / t:.2f}" if t > 0 else "-", cell(spread_u), cell(spread_v)]
+        print("| " + " | ".join(row) + " |", flush=True)
     print(f"\nclouds and results in {root}")
     return 0
 
