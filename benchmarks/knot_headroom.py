@@ -53,9 +53,10 @@ def greville(knots: np.ndarray, degree: int) -> np.ndarray:
     return np.array([knots[i + 1:i + degree + 1].mean() for i in range(n)])
 
 
-def warp(surface: dict) -> tuple[float, float]:
+def warp(surface: dict) -> tuple[float | None, float | None]:
     """Largest over smallest of the control rows' spacing in (x, y) relative to their
-    Greville spacing, per direction (u rows, v rows), the end rows left out."""
+    Greville spacing, per direction (u rows, v rows), the end rows left out (None where
+    no inner gap is left or one has closed)."""
     net = np.asarray(surface["control_points"], float)[..., :2]  # (nu, nv, 2)
     spreads = []
     for axis, (knots, degree) in enumerate(((surface["knots_u"], surface["degree_u"]),
