@@ -214,3 +214,34 @@ def test_a_strip_of_surface_past_the_data_is_trimmed_however_thin_in_the_domain(
     assert face.trim is not None and face.loops == 1
     assert face.points_outside <= 3  # at most a few hull points whose triangles are all slivers
     assert face.empty_share > 0.5  # the band from u = 0.9 to 1 is most of the surface
+
+
+def test_residuals_of_a_near_exact_fit_along_an_edge_stay_on_the_face():
+    """A noise-free fit's residuals are its approximation error: most points on the
+    surface to 1e-6, a band along an edge (where the net bends least well) off it by
+    1e-3, three orders of robust scale off but a thirtieth of the spacing. They lie in the
+    data's layer, so the face holds them."""
+    surface = plane()
+    uv = sample(lambda u, v: np.ones_like(u, bool), 3000, seed=6)
+    distances = np.full(len(uv), 1e-6)
+    distances[uv[:, 1] < 0.05] = 1e-3
+    face = footprint(surface, surface.evaluate(uv[:, 0], uv[:, 1]), uv, distances, True)
+    assert face.trim is not None
+    assert face.points_outside == 0
+    assert np.array_equal(face.distances, distances)
+
+
+def test_gross_outliers_far_off_the_surface_do_not_widen_the_face():
+    """Junk far from the surface (its foot points in the empty corners of an elliptic
+    plate) says nothing about where the data are: the face is the plate's, the junk off it."""
+    surface = plane()
+    uv = sample(lambda u, v: ((u - 0.5) / 0.47) ** 2 + ((v - 0.5) / 0.4) ** 2 < 1.0, 3000, seed=7)
+    junk = np.random.default_rng(8).random((400, 2)) * 0.1 + np.array([0.0, 0.0])
+    both = np.vstack([uv, junk])
+    distances = np.concatenate([np.full(len(uv), 1e-4), np.full(len(junk), 0.5)])
+    face = footprint(surface, surface.evaluate(both[:, 0], both[:, 1]), both, distances, True)
+    assert face.trim is not None
+    assert face.trim.contains(uv).all()
+    assert not face.trim.contains(junk).any()
+    area = sum(signed_area(p) for p in face.trim.polygons())
+    assert area == pytest.approx(np.pi * 0.47 * 0.4, rel=0.06)
