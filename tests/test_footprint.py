@@ -245,3 +245,12 @@ def test_gross_outliers_far_off_the_surface_do_not_widen_the_face():
     assert not face.trim.contains(junk).any()
     area = sum(signed_area(p) for p in face.trim.polygons())
     assert area == pytest.approx(np.pi * 0.47 * 0.4, rel=0.06)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_rectangle_whose_density_falls_fifty_fold_stays_whole_under_auto(seed):
+    """A scan's density falls with range: its sparse end leaves sampling gaps many
+    median spacings wide, as wide as its own spacing there. They are measured in the
+    spacing of the data beside them, so the rectangle the data fill stays untrimmed."""
+    uv = sample(lambda u, v: np.ones_like(u, bool), 3000, seed=seed, density=lambda u, v: 0.02 + 0.98 * u ** 2)
+    assert fit_footprint(uv).trim is None

@@ -266,8 +266,8 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
     ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
     smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
     distance to the surface's edge (the chord to the edge point along each parameter
-    line of an open direction), over the median of the points' spacings
-    (:func:`local_spacing`, on the surface).
+    line of an open direction), over the points' spacing there (:func:`gap_scale`, on
+    the surface).
 
     Measured on the surface itself, not in the parameter domain at the mean speeds:
     where the surface is stretched (an edge row of control points far out, a flap past
@@ -283,7 +283,23 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
             edge = empty_uv.copy()
             edge[:, k] = end
             radius = np.minimum(radius, np.linalg.norm(at - surface.evaluate(edge[:, 0], edge[:, 1]), axis=1))
-    return float(np.max(radius) / max(float(np.median(local_spacing(points))), 1e-300))
+    return float(np.max(radius / gap_scale(points, at)))
+
+
+def gap_scale(points: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The spacing (M,) a gap at the surface points ``at`` (M, 3) is measured in: the
+    local spacing of the nearest of the points (N, 3) over sqrt 2, never below their
+    median spacing.
+
+    A random sample leaves gaps as wide as its local spacing, so where the data thin
+    out (a scan's density falling with range) the median spacing of the whole cloud
+    makes sampling gaps look real: a rectangle filled with a density falling 50-fold
+    across it was trimmed on most draws. The nearest point to a gap lies on the data's
+    edge, where its neighbours fill half a disc and :func:`local_spacing` reads sqrt 2
+    too wide; the median keeps the measure where the data are dense as it was."""
+    spacing = local_spacing(points)
+    nearest = cKDTree(points).query(at)[1]
+    return np.maximum(spacing[nearest] / np.sqrt(2.0), max(float(np.median(spacing)), 1e-300))
 
 
 def well_spread(x: np.ndarray, size: int) -> np.ndarray:
