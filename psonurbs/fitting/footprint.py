@@ -36,11 +36,11 @@ A face that holds fewer than half of the points (a fit far from the data, pieces
 the cloud spread over the domain) is not the data's footprint: the surface is left
 untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap
 on the surface: an empty disc on the surface outside the face (bounded by the face and the
-surface's edge) of radius at least ``ALPHA`` median spacings (as wide as the gaps the
-alpha shape opens). It is measured on the surface (:func:`widest_gap`), so a strip of
-stretched surface past the data counts however thin it is in the domain; a cloud that
-fills its rectangle leaves only sampling gaps along the edges. ``true`` always; ``false``
-never.
+surface's edge) of radius at least ``ALPHA`` spacings of the data beside it (as wide as
+the gaps the alpha shape opens; :func:`gap_scale`). It is measured on the surface
+(:func:`widest_gap`), so a strip of stretched surface past the data counts however thin
+it is in the domain; a cloud that fills its rectangle leaves only sampling gaps along the
+edges. ``true`` always; ``false`` never.
 """
 from __future__ import annotations
 
@@ -162,7 +162,7 @@ class Contours:
     fragment_points: int
     spacing: float  # median spacing, surface length units
     tolerance: np.ndarray  # (2,) half the margin, in u and v
-    widest_gap: float  # the widest gap on the surface outside the face, in median spacings of the points
+    widest_gap: float  # the widest empty disc outside the face, in spacings of the data beside it (gap_scale)
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
