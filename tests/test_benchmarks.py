@@ -321,3 +321,29 @@ def test_knot_headroom_reads_the_warp_of_a_net_off_its_rows(monkeypatch):
     net[..., 0] = rows[:, None]
     surface["control_points"] = net.tolist()
     assert headroom.warp(surface) == pytest.approx((6.0, 1.0))
+
+
+def test_knot_oracle_fits_with_the_given_inner_knots(tmp_path):
+    """benchmarks/knot_oracle.py: the fit's knot vector along u holds the given inner knots
+    (v stays uniform), the swarm's start is uniform again afterwards, and a vector that
+    does not fit the net is refused."""
+    oracle = load("bench_knot_oracle", REPO / "benchmarks" / "knot_oracle.py")
+    rng = np.random.default_rng(5)
+    uv = rng.random((400, 2))
+    cloud = tmp_path / "sheet.xyz"
+    np.savetxt(cloud, np.column_stack([uv, 0.1 * np.tanh(8 * (uv[:, 0] - 0.4))]))
+    config = tmp_path / "c.yaml"
+    config.write_text("net_size: [7, 6]\norders: [4, 4]\npolish_iterations: 3\ntrim: false\n")
+    inner = [0.2, 0.35, 0.45]
+    assert oracle.main([str(cloud), "--config", str(config), "--knots-u", *map(str, inner),
+                        "--out", str(tmp_path / "out")]) == 0
+    surface = json.loads((tmp_path / "out" / "sheet.json").read_text())["surface"]
+    knots_u, knots_v = np.array(surface["knots_u"]), np.array(surface["knots_v"])
+    span = knots_u[-1] - knots_u[0]
+    assert (knots_u[4:-4] - knots_u[0]) / span == pytest.approx(inner, abs=1e-12)
+    assert np.diff(knots_v[4:-3]) == pytest.approx(np.full(2, (knots_v[-1] - knots_v[0]) / 3))
+    from psonurbs.fitting.hybrid import KnotWeightSearch
+    assert KnotWeightSearch.classical.__qualname__ == "KnotWeightSearch.classical"  # restored
+    with pytest.raises(SystemExit):
+        oracle.main([str(cloud), "--config", str(config), "--knots-u", "0.5", "0.4", "0.6",
+                     "--out", str(tmp_path / "bad")])
