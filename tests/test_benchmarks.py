@@ -347,3 +347,15 @@ def test_knot_oracle_fits_with_the_given_inner_knots(tmp_path):
     with pytest.raises(SystemExit):
         oracle.main([str(cloud), "--config", str(config), "--knots-u", "0.5", "0.4", "0.6",
                      "--out", str(tmp_path / "bad")])
+
+
+def test_trim_sampling_counts_the_draws_trim_auto_trims(capsys):
+    """benchmarks/trim_sampling.py: a uniform sample of the square fills it, so no draw is
+    trimmed and its widest gap is under the alpha scale."""
+    sampling = load("bench_trim_sampling", REPO / "benchmarks" / "trim_sampling.py")
+    assert sampling.main(["--draws", "2", "--points", "800", "--only", "uniform"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| uniform")]
+    assert len(rows) == 1
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert cells[1] == "800" and cells[2] == "0 of 2"
+    assert float(cells[4]) < 2.5
