@@ -2,6 +2,7 @@
 
     python benchmarks/knot_oracle.py CLOUD --config CONFIG --knots-u 0.2 0.32 0.38 0.5 0.6 0.72 0.78 0.9 --out DIR
     python benchmarks/knot_oracle.py CLOUD --config CONFIG --knots-v ... --out DIR --gt CASE.gt.npz --scorer SCORE_PY
+    python benchmarks/knot_oracle.py CLOUD --config CONFIG --random 12 --out DIR --gt CASE.gt.npz
 
 The swarm's fitness judges a knot vector at the first parameters, its validation after
 ten rounds of parameter correction; the fit the user gets has had the whole polish and
@@ -10,12 +11,20 @@ iteration) with its uniform inner knots replaced by the given ones (one directio
 both; a direction not given stays uniform), so that they go through the polishes, the
 refinement and the trim as uniform knots do, and writes the fit's files to DIR as
 ``psonurbs fit`` does. With ``--gt`` the scorer (``benchmarks/score.py``, or
-``--scorer``) measures the fit against the truth and its line is printed. README (The
-swarm: what it buys and what it costs) has what hand-placed knots did on the steps.
+``--scorer``) measures the fit against the truth and its line is printed.
+
+``--random N`` fits the uniform knots and N mildly uneven vectors in both directions
+(inner spans drawn from a Dirichlet distribution of concentration ``--concentration``,
+20 by default: spans within about a fifth of uniform; fixed seed ``--seed``), each to
+DIR/K, and prints a table of their rmse and truth_rms (``--gt`` needed) and whether the
+finished fit's rmse ranks the vectors as their truth does (Spearman): could a search
+that judges knots by the fit they end in find the truer ones? README (The swarm: what it
+buys and what it costs) has what hand-placed and random knots did on the steps.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -47,32 +56,88 @@ def with_inner_knots(inner_u: list[float] | None, inner_v: list[float] | None):
     return lambda: setattr(hybrid.KnotWeightSearch, "classical", uniform)
 
 
+def fit_with(cloud: Path, config: Path, out: Path, inner_u, inner_v) -> None:
+    """The classical fit of the cloud with these inner knots (None: uniform), into ``out``."""
+    from psonurbs.cli.main import main as command_line
+
+    restore = with_inner_knots(inner_u, inner_v)
+    try:
+        command_line(["fit", str(cloud), "--config", str(config), "--particles", "1",
+                      "--iterations", "1", "--out", str(out), "--quiet"])
+    except SystemExit as stop:  # the command line's own exit: an error, or knots that do not fit the net
+        if stop.code not in (None, 0):
+            raise
+    finally:
+        restore()
+
+
+def score(scorer: Path, cloud: Path, out: Path, gt: Path) -> dict:
+    """The scorer's figures of the fit in ``out`` against the truth (its error, if it failed)."""
+    scored = subprocess.run([sys.executable, str(scorer), str(cloud), str(out), "--gt", str(gt)],
+                            capture_output=True, text=True)
+    if scored.returncode != 0:
+        return {"error": (scored.stderr or scored.stdout).strip()}
+    return json.loads(scored.stdout.strip().splitlines()[-1])
+
+
+def inner_counts(config: Path) -> tuple[int, int]:
+    """Inner knots along u and v of an open net of the config."""
+    from psonurbs.config import load_config
+
+    loaded = load_config(config)
+    return tuple(int(n) - int(k) for n, k in zip(loaded.net_size, loaded.orders))
+
+
+def random_search(args) -> int:
+    """The uniform knots and ``args.random`` mildly uneven vectors, scored; a table."""
+    from scipy.stats import spearmanr
+
+    if args.gt is None:
+        raise SystemExit("--random needs --gt (the vectors are compared by their truth error)")
+    counts = inner_counts(args.config)
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    print("| vector | inner u | inner v | rmse | truth_rms |")
+    print("|---|---|---|---|---|")
+    for k in range(args.random + 1):
+        inner = [None if k == 0 else np.cumsum(rng.dirichlet(np.full(c + 1, args.concentration)))[:-1].tolist()
+                 for c in counts]
+        out = args.out / str(k)
+        fit_with(args.cloud, args.config, out, *inner)
+        figures = score(args.scorer, args.cloud, out, args.gt)
+        shown = ["uniform" if knots is None else " ".join(f"{t:.3f}" for t in knots) for knots in inner]
+        if "error" in figures:
+            print(f"| {k} | {shown[0]} | {shown[1]} | {figures['error']} | - |")
+            continue
+        rows.append((figures["rmse"], figures["truth_rms"]))
+        print(f"| {k} | {shown[0]} | {shown[1]} | {figures['rmse']:.3g} | {figures['truth_rms']:.3g} |", flush=True)
+    rmse, truth = np.array(rows).T
+    print(f"\nSpearman (rmse, truth_rms) {spearmanr(rmse, truth).correlation:.2f}; truth_rms over the uniform "
+          f"knots': least rmse's {truth[np.argmin(rmse)] / truth[0]:.2f}, best {truth.min() / truth[0]:.2f}, "
+          f"worst {truth.max() / truth[0]:.2f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cloud", type=Path)
     ap.add_argument("--config", type=Path, required=True)
     ap.add_argument("--knots-u", type=float, nargs="+")
     ap.add_argument("--knots-v", type=float, nargs="+")
+    ap.add_argument("--random", type=int, metavar="N", help="the uniform and N random mildly uneven vectors, scored")
+    ap.add_argument("--concentration", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--gt", type=Path, help="the case's ground truth (CASE.gt.npz): score the fit against it")
     ap.add_argument("--scorer", type=Path, default=BENCH / "score.py", metavar="SCORE_PY")
     args = ap.parse_args(argv)
-    from psonurbs.cli.main import main as command_line
-
-    restore = with_inner_knots(args.knots_u, args.knots_v)
-    try:
-        command_line(["fit", str(args.cloud), "--config", str(args.config), "--particles", "1",
-                      "--iterations", "1", "--out", str(args.out), "--quiet"])
-    except SystemExit as stop:  # the command line's own exit: an error, or knots that do not fit the net
-        if stop.code not in (None, 0):
-            raise
-    finally:
-        restore()
+    if args.random is not None:
+        return random_search(args)
+    fit_with(args.cloud, args.config, args.out, args.knots_u, args.knots_v)
     if args.gt is not None:
-        scored = subprocess.run([sys.executable, str(args.scorer), str(args.cloud), str(args.out), "--gt", str(args.gt)],
-                                capture_output=True, text=True)
-        print(scored.stdout.strip() or scored.stderr.strip())
-        return scored.returncode
+        figures = score(args.scorer, args.cloud, args.out, args.gt)
+        print(json.dumps(figures))
+        return 1 if "error" in figures else 0
     return 0
 
 
