@@ -261,8 +261,8 @@ def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray) -> float:
-    """The widest gap on the surface outside the face, in the points' (N, 3) median
-    spacing: max over the surface at the parameters ``empty_uv`` (M, 2) (at most
+    """The widest gap on the surface outside the face, in the spacing of the points
+    (N, 3) beside it: max over the surface at the parameters ``empty_uv`` (M, 2) (at most
     ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
     smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
     distance to the surface's edge (the chord to the edge point along each parameter
