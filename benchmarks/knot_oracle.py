@@ -25,11 +25,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+from run_cases import outside_score
 
 from psonurbs.fitting import hybrid
 
@@ -71,15 +71,6 @@ def fit_with(cloud: Path, config: Path, out: Path, inner_u, inner_v) -> None:
         restore()
 
 
-def score(scorer: Path, cloud: Path, out: Path, gt: Path) -> dict:
-    """The scorer's figures of the fit in ``out`` against the truth (its error, if it failed)."""
-    scored = subprocess.run([sys.executable, str(scorer), str(cloud), str(out), "--gt", str(gt)],
-                            capture_output=True, text=True)
-    if scored.returncode != 0:
-        return {"error": (scored.stderr or scored.stdout).strip()}
-    return json.loads(scored.stdout.strip().splitlines()[-1])
-
-
 def inner_counts(config: Path) -> tuple[int, int]:
     """Inner knots along u and v of an open net of the config."""
     from psonurbs.config import load_config
@@ -104,11 +95,8 @@ def random_search(args) -> int:
                  for c in counts]
         out = args.out / str(k)
         fit_with(args.cloud, args.config, out, *inner)
-        figures = score(args.scorer, args.cloud, out, args.gt)
+        figures = outside_score(args.scorer)(args.cloud, out, args.gt)
         shown = ["uniform" if knots is None else " ".join(f"{t:.3f}" for t in knots) for knots in inner]
-        if "error" in figures:
-            print(f"| {k} | {shown[0]} | {shown[1]} | {figures['error']} | - |")
-            continue
         rows.append((figures["rmse"], figures["truth_rms"]))
         print(f"| {k} | {shown[0]} | {shown[1]} | {figures['rmse']:.3g} | {figures['truth_rms']:.3g} |", flush=True)
     rmse, truth = np.array(rows).T
@@ -135,9 +123,7 @@ def main(argv=None) -> int:
         return random_search(args)
     fit_with(args.cloud, args.config, args.out, args.knots_u, args.knots_v)
     if args.gt is not None:
-        figures = score(args.scorer, args.cloud, args.out, args.gt)
-        print(json.dumps(figures))
-        return 1 if "error" in figures else 0
+        print(json.dumps(outside_score(args.scorer)(args.cloud, args.out, args.gt)))
     return 0
 
 
