@@ -236,7 +236,7 @@ def test_gross_outliers_far_off_the_surface_do_not_widen_the_face():
     plate) says nothing about where the data are: the face is the plate's, the junk off it."""
     surface = plane()
     uv = sample(lambda u, v: ((u - 0.5) / 0.47) ** 2 + ((v - 0.5) / 0.4) ** 2 < 1.0, 3000, seed=7)
-    junk = np.random.default_rng(8).random((400, 2)) * 0.1 + np.array([0.0, 0.0])
+    junk = np.random.default_rng(8).random((400, 2)) * 0.1  # in the corner u, v < 0.1, outside the plate
     both = np.vstack([uv, junk])
     distances = np.concatenate([np.full(len(uv), 1e-4), np.full(len(junk), 0.5)])
     face = footprint(surface, surface.evaluate(both[:, 0], both[:, 1]), both, distances, True)
