@@ -261,3 +261,63 @@ def test_config_with_a_byte_order_mark_is_read(tmp_path):
     path = tmp_path / "cfg.yaml"
     path.write_bytes(b"\xef\xbb\xbfswarm: {particles: 3}\n")
     assert load_config(path).swarm.particles == 3
+
+
+# ---- the table of fields: defaults, validation and the rendered docs --------------
+
+def test_the_table_has_one_row_per_key_in_the_dataclasses_order():
+    from psonurbs.config import FIELDS
+
+    keys = []
+    for key, value in FitConfig().to_dict().items():
+        keys += [f"swarm.{name}" for name in value] if key == "swarm" else [key]
+    assert list(FIELDS) == keys
+
+
+def test_the_dataclasses_defaults_are_the_tables():
+    from psonurbs.config import FIELDS
+
+    config = FitConfig()
+    for key, row in FIELDS.items():
+        owner = config.swarm if key.startswith("swarm.") else config
+        assert getattr(owner, row.name) == row.default, key
+
+
+def test_every_key_is_checked_by_its_row():
+    from psonurbs.config import FIELDS
+
+    for key, row in FIELDS.items():
+        bad = 0.5 if row.kind in ("choice", "switch", "auto-switch") or row.kind == "integer" else "x"
+        d = {"swarm": {row.name: bad}} if key.startswith("swarm.") else {key: [bad, bad] if row.pair else bad}
+        with pytest.raises(ConfigError) as info:
+            config_from_dict(d)
+        assert str(info.value).startswith(f"config key '{key}': expected {row.expected()}, got "), key
+
+
+# A value above its bound, and the keys that let the bound itself pass.
+ABOVE_BOUND = {"orders": {"net_size": [12, 12]}, "swarm.particles": {"swarm": {"iterations": 1}},
+               "swarm.iterations": {"swarm": {"particles": 1}}, "tessellation": {}}
+
+
+def test_every_bound_of_the_table_is_enforced_and_named():
+    from psonurbs.config import FIELDS
+
+    for key, row in FIELDS.items():
+        if row.most is None:
+            continue
+        at, above = row.most, row.most + 1
+        if row.kind == "number" and key != "weight_bounds":
+            above = row.most * 1.5
+        extra = ABOVE_BOUND.get(key, {})
+
+        def config(value, key=key, row=row, extra=extra):
+            if key.startswith("swarm."):
+                return config_from_dict({"swarm": {**extra.get("swarm", {}), row.name: value}})
+            value = ([row.default[0], value] if key != "weight_bounds" else [0.5, value]) if row.pair else value
+            return config_from_dict({**extra, key: value})
+
+        config(at)  # the bound itself is allowed
+        with pytest.raises(ConfigError) as info:
+            config(above)
+        assert f"config key '{key}': " in str(info.value) and f"is too large: at most {row.most:,} ({row.why})" \
+            in str(info.value), key
