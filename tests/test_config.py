@@ -321,3 +321,48 @@ def test_every_bound_of_the_table_is_enforced_and_named():
             config(above)
         assert f"config key '{key}': " in str(info.value) and f"is too large: at most {row.most:,} ({row.why})" \
             in str(info.value), key
+
+
+def test_the_readme_holds_the_rendered_configuration_table():
+    from psonurbs.config import README_END, README_START, render_readme_table
+
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert README_START in readme and README_END in readme, \
+        "README.md lacks the configuration table's marker lines"
+    between = readme[readme.index(README_START) + len(README_START):readme.index(README_END)]
+    assert between == "\n" + render_readme_table(), \
+        "README.md's configuration table is stale: run python3 -m psonurbs.config --readme README.md"
+
+
+def test_docs_configuration_is_as_rendered():
+    from psonurbs.config import DOCS_PATH, render_configuration_doc
+
+    assert (REPO / DOCS_PATH).read_text(encoding="utf-8") == render_configuration_doc(), \
+        f"{DOCS_PATH} is stale: run python3 -m psonurbs.config --docs {DOCS_PATH}"
+
+
+def test_the_rendered_table_has_a_row_per_key_and_alias():
+    from psonurbs.config import ALIASES, FIELDS, render_readme_table
+
+    rows = render_readme_table().splitlines()[2:]
+    assert [row.split(" | ")[0].strip("| `") for row in rows] == [*FIELDS, *ALIASES]
+    assert "| `swarm.particles` | integer | `40` | >= 1, <= 10,000;" in rows[4]
+    assert "| `smoothing` | number | `1e-6` | >= 0, <= 1e6 |" in rows[10]
+
+
+def test_the_module_regenerates_both_from_the_command_line(tmp_path):
+    import subprocess
+    import sys
+
+    from psonurbs.config import README_END, README_START, render_configuration_doc, render_readme_table
+
+    env_root = str(REPO)  # this checkout's psonurbs, as from a plain clone
+    printed = subprocess.run([sys.executable, "-m", "psonurbs.config", "--readme"], capture_output=True, text=True,
+                             cwd=tmp_path, env={"PYTHONPATH": env_root}, check=True).stdout
+    assert printed == render_readme_table()
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{README_START}\nold table\n{README_END}\nafter\n")
+    subprocess.run([sys.executable, "-m", "psonurbs.config", "--readme", str(readme), "--docs",
+                    str(tmp_path / "configuration.md")], cwd=tmp_path, env={"PYTHONPATH": env_root}, check=True)
+    assert readme.read_text() == f"# x\n\n{README_START}\n{render_readme_table()}{README_END}\nafter\n"
+    assert (tmp_path / "configuration.md").read_text() == render_configuration_doc()
