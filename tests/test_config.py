@@ -323,6 +323,18 @@ def test_every_bound_of_the_table_is_enforced_and_named():
             in str(info.value), key
 
 
+def test_the_fit_commands_overriding_options_come_from_the_table():
+    from psonurbs.cli.main import fit
+    from psonurbs.config import FIELDS, option_help
+
+    helps = {opt: getattr(param, "help", None) for param in fit.params for opt in param.opts}
+    for key, row in FIELDS.items():
+        if row.option:
+            assert helps[row.option] == option_help(key) and f"default {row.default}" in helps[row.option]
+    assert {"--seed", "--particles", "--iterations", "--topology", "--strategy", "--parametrisation"} <= {
+        row.option for row in FIELDS.values()}
+
+
 def test_the_readme_holds_the_rendered_configuration_table():
     from psonurbs.config import README_END, README_START, render_readme_table
 
