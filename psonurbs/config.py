@@ -793,6 +793,8 @@ def main(argv: list[str] | None = None) -> None:
     elif args.readme is not None:
         with open(args.readme, encoding="utf-8") as file:
             text = file.read()
+        if README_START not in text or README_END not in text:
+            parser.error(f"{args.readme} lacks the marker lines {README_START} and {README_END}")
         with open(args.readme, "w", encoding="utf-8") as file:
             file.write(with_readme_table(text))
     if args.docs is not None:

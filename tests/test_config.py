@@ -287,7 +287,7 @@ def test_every_key_is_checked_by_its_row():
     from psonurbs.config import FIELDS
 
     for key, row in FIELDS.items():
-        bad = 0.5 if row.kind in ("choice", "switch", "auto-switch") or row.kind == "integer" else "x"
+        bad = "x" if row.kind == "number" else 0.5
         d = {"swarm": {row.name: bad}} if key.startswith("swarm.") else {key: [bad, bad] if row.pair else bad}
         with pytest.raises(ConfigError) as info:
             config_from_dict(d)
