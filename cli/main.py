@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 
 import psonurbs
-from psonurbs.config import PARAMETRISATIONS, STRATEGIES, TOPOLOGIES, load_config
+from psonurbs.config import CHOICE, FIELDS, INTEGER, NUMBER, load_config, option_help
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
 from psonurbs.run.batch import preflight, run_batch
@@ -137,6 +137,16 @@ def jobs_option(help_text: str):
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 
 
+def config_options(command):
+    """The options that override a config key (``--seed``, ``--topology``, ...): one per key
+    of the config's table that names one, in its order, with its help; the value is checked
+    by the config's own rules (:meth:`psonurbs.config.FitConfig.with_overrides`)."""
+    for f in reversed([f for f in FIELDS.values() if f.option]):
+        kind = click.Choice(f.choices) if f.kind == CHOICE else {INTEGER: int, NUMBER: float}[f.kind]
+        command = click.option(f.option, type=kind, default=None, help=option_help(f.key))(command)
+    return command
+
+
 class _Commands(click.Group):
     """The command group, reporting click's own errors as the tool does its own: one line
     ``psonurbs: error: ...`` on stderr and exit 2 (a usage error is unusable input), instead
@@ -175,16 +185,7 @@ def cli() -> None:
 @click.option("--out", "-o", "out_dir", metavar="DIR", required=True,
               type=click.Path(file_okay=False, path_type=Path),
               help="Directory for the outputs (created if needed).")
-@click.option("--seed", type=int, default=None, help="Override swarm.seed.")
-@click.option("--particles", type=int, default=None, help="Override swarm.particles.")
-@click.option("--iterations", type=int, default=None, help="Override swarm.iterations.")
-@click.option("--topology", type=click.Choice(TOPOLOGIES), default=None,
-              help="Override topology.")
-@click.option("--strategy", type=click.Choice(STRATEGIES), default=None,
-              help="Override strategy.")
-@click.option("--parametrisation", type=click.Choice(PARAMETRISATIONS), default=None,
-              help="Override parametrisation (first parameters of an open patch: plane, "
-                   "intrinsic, or auto: the plane where the cloud is a height field over it).")
+@config_options
 @jobs_option("Fit clouds in N worker processes (one BLAS thread each); the files are identical "
              "to --jobs 1.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,

@@ -1,24 +1,23 @@
-"""The fit configuration: schema, defaults and validation.
+"""The fit configuration: its table of fields, the dataclasses, validation and the YAML reader.
 
-A config is a YAML mapping in the paper's vocabulary (see DESIGN.md)::
+A config is a YAML mapping in the paper's vocabulary (see docs/design.md)::
 
-    orders: [3, 3]        # k, l: order = degree + 1
-    net_size: [5, 5]      # (m+1) x (n+1) control points
+    orders: [4, 4]        # k, l: order = degree + 1
+    net_size: [8, 8]      # (m+1) x (n+1) control points
     topology: open        # open | cylinder | sphere | torus | auto
     swarm:
-      particles: 40
-      iterations: 300
-      inertia: 0.7        # w
-      c1: 1.5
-      c2: 1.5
-      seed: 7
+      particles: 20
+      seed: 3
 
-Every key is optional. Validation is strict: an unknown key, a value of the wrong
-type (``true`` is not an integer) or an impossible value raises
-:class:`psonurbs.errors.ConfigError` whose message names the file and the key.
+Every key is optional. :data:`FIELDS` holds one row per key (type, default, bounds, one
+line of help): the dataclasses' defaults, their validation, the README's configuration
+table and docs/configuration.md come from it (``python3 -m psonurbs.config --readme
+README.md --docs docs/configuration.md`` renders both).
 
-The dataclasses validate themselves in ``__post_init__``, so a config built in
-Python is checked by the same rules as one read from YAML.
+Validation is strict: an unknown key, a value of the wrong type (``true`` is not an
+integer) or an impossible value raises :class:`psonurbs.errors.ConfigError` whose message
+names the file and the key. The dataclasses validate themselves in ``__post_init__``, so a
+config built in Python is checked by the same rules as one read from YAML.
 """
 from __future__ import annotations
 
@@ -29,16 +28,13 @@ import numbers
 import os
 import re
 import reprlib
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, Hashable, Mapping
 
 import yaml
 
 from psonurbs.errors import ConfigError, existing_file
-
-TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
-STRATEGIES = ("hybrid", "full")
-PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
 
 __all__ = [
     "SwarmConfig",
@@ -48,14 +44,16 @@ __all__ = [
     "PARAMETRISATIONS",
     "load_config",
     "config_from_dict",
-    "BOUNDS",
-    "Bound",
+    "Field",
+    "FIELDS",
+    "ALIASES",
+    "render_readme_table",
+    "render_configuration_doc",
 ]
 
 
 # ---- value checks ----------------------------------------------------------
-# Each takes the dotted key (for the message) and the raw value, and returns the
-# normalised value (Python int / float / tuple) or raises ConfigError.
+# A value in a message is shown as the user wrote it, cut short.
 
 SHOWN_CHARACTERS = 40  # a value in an error message is cut to about this many characters
 _SHORT = reprlib.Repr()
@@ -98,112 +96,243 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def _int(key: str, value: Any, *, minimum: int, what: str) -> int:
-    if not _is_int(value) or value < minimum:
-        raise _fail(key, what, value)
-    _within_bound(key, value)
-    return int(value)
+def _exponent(text: str) -> str:
+    """'1e-06' -> '1e-6', '1e+06' -> '1e6'."""
+    return re.sub(r"e([+-])0*(\d)", lambda m: "e" + ("-" if m.group(1) == "-" else "") + m.group(2), text)
 
 
-def _float(key: str, value: Any, *, what: str, ok=lambda x: True) -> float:
-    if not _is_real(value) or not math.isfinite(float(value)) or not ok(float(value)):
-        raise _fail(key, what, value)
-    _within_bound(key, float(value))
-    return float(value)
+def _number(x: float) -> str:
+    """A bound: ``10,000``, ``1e6``."""
+    return f"{x:,}" if isinstance(x, int) else _exponent(f"{x:g}")
 
 
 class _TooLarge(ConfigError):
     """A value above its bound: its own message, kept when the value is an item of a list."""
 
 
-def _within_bound(key: str, value) -> None:
-    """Refuse a value above the key's bound in :data:`BOUNDS`, naming the bound."""
-    bound = BOUNDS.get(key)
-    if bound is not None and value > bound.most:
-        raise _TooLarge(f"config key '{key}': {_show(value)} is too large: at most {bound.most:,} "
-                          f"({bound.why})")
+# ---- the table of fields ---------------------------------------------------
+# One row per key. The dataclasses below take their defaults from it, validation its
+# rules, the README's and docs/configuration.md's tables their rows (render_readme_table,
+# render_configuration_doc) and ``psonurbs fit``'s overriding options their --help.
+# Every size has an upper bound (``most``), so that no value can make a fit allocate or
+# compute without end; the message names it. A new key adds a row here and a field to
+# its dataclass.
 
+INTEGER, NUMBER, CHOICE, SWITCH, AUTO_SWITCH = "integer", "number", "choice", "switch", "auto-switch"
+TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
+STRATEGIES = ("hybrid", "full")
+PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
 
-def _pair(key: str, value: Any, item, what: str) -> tuple:
-    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__len__") or len(value) != 2:
-        raise _fail(key, f"a list of 2 {what}", value)
-    try:
-        return tuple(item(v) for v in value)
-    except _TooLarge:
-        raise
-    except ConfigError:
-        raise _fail(key, f"a list of 2 {what}", list(value)) from None
-
-
-def _choice(key: str, value: Any, choices: tuple[str, ...]) -> str:
-    if not isinstance(value, str) or value not in choices:
-        raise _fail(key, "one of " + ", ".join(choices), value)
-    return value
-
-
-# ---- bounds ----------------------------------------------------------------
-# Every size a config sets has an upper bound, so that no value can make a fit allocate
-# or compute without end; the error names the bound. New keys add a row. (What a whole
-# config implies for a given cloud, the largest array and the net against the point
-# count, is judged by psonurbs.fitting.budget before fitting.)
-
-@dataclass(frozen=True)
-class Bound:
-    most: float  # the largest value allowed
-    why: str  # what the bound protects, for the message
-
-
-BOUNDS: dict[str, Bound] = {
-    "orders": Bound(10, "degree 9 at most"),
-    "net_size": Bound(1000, "control points along one direction"),
-    "tessellation": Bound(10_000, "mesh vertices along one direction"),
-    "swarm_points": Bound(100_000, "points the swarm's fitness sees"),
-    "polish_iterations": Bound(10_000, "rounds of parameter correction"),
-    "refine_iterations": Bound(10_000, "Levenberg-Marquardt steps of the joint refinement"),
-    "swarm.particles": Bound(10_000, "particles of the swarm"),
-    "swarm.iterations": Bound(100_000, "generations of the swarm, rows of the error curve"),
-    "swarm.seed": Bound(2**64 - 1, "a 64-bit seed"),
-    "swarm.inertia": Bound(10, "w; a swarm is stable below 1"),
-    "swarm.c1": Bound(10, "learning factor"),
-    "swarm.c2": Bound(10, "learning factor"),
-    "smoothing": Bound(1e6, "relative weight of the smoothness term"),
-    "weight_bounds": Bound(1e6, "NURBS weights"),
-}
+# Rules between keys (checked by the dataclasses, said in the tables' ``also``):
 MAX_EVALUATIONS = 10_000_000  # swarm.particles x swarm.iterations: fitness evaluations of one fit
 MAX_TESSELLATION_VERTICES = 4_000_000  # tessellation[0] x tessellation[1]
 MIN_SWARM_POINTS = 16  # fewer cannot judge a particle (and the robust pass may leave none of them)
 MIN_WEIGHT_BOUND = 1e-6  # weight_bounds[0] at least this (its log bounds the swarm's search)
+SPHERE_MIN_V = 3  # control points along v of a sphere: the first and last collapse to the poles
+
+# What a whole config implies for a cloud, judged by psonurbs.fitting.budget before fitting:
+ARRAY_LIMIT = 1 << 30  # bytes one array of a fit may take (1 GiB)
+NET_PER_POINT = 4  # control points per point of the cloud, at most ...
+NET_FLOOR = 100  # ... but never fewer than this many (16 points on the paper's 5 x 5 net are fine)
+
+
+@dataclass(frozen=True)
+class Field:
+    """One config key: its YAML name, kind, default, allowed values and one line of help.
+
+    kind: integer, number, choice (one of ``choices``), switch (true or false) or
+    auto-switch (auto, true or false). ``pair``: a list of 2 of that kind (along u, v),
+    each item checked alone. An integer or number is at least ``least`` (more than it with
+    ``least_open``), below ``below`` when given, and at most ``most``; ``why`` says what
+    that bound protects. ``note`` follows the expected value in a message, ``also`` says a
+    rule between keys that the dataclass checks, ``option`` is the option of ``psonurbs
+    fit`` that overrides the key.
+    """
+
+    key: str  # dotted: "swarm.seed"
+    kind: str
+    default: Any
+    help: str
+    pair: bool = False
+    least: float | None = None
+    least_open: bool = False
+    below: float | None = None
+    most: float | None = None
+    why: str = ""
+    choices: tuple[str, ...] = ()
+    note: str = ""
+    also: str = ""
+    option: str = ""
+
+    @property
+    def name(self) -> str:
+        """The dataclass attribute: ``seed`` for ``swarm.seed``."""
+        return self.key.rsplit(".", 1)[-1]
+
+    def expected(self) -> str:
+        """What a value must be, in the words of the error message: 'a positive integer',
+        'a list of 2 integers >= 2 (order = degree + 1)'."""
+        if self.kind == CHOICE:
+            return "one of " + ", ".join(self.choices)
+        if self.kind == SWITCH:
+            return "true or false"
+        if self.kind == AUTO_SWITCH:
+            return "auto, true or false"
+        noun = self.kind
+        if self.below is not None:
+            interval = f"{'(' if self.least_open else '['}{self.least}, {self.below})"
+            one, many = f"a {noun} in {interval}", f"{noun}s in {interval}"
+        elif self.least == (1 if noun == INTEGER else 0) and (noun == INTEGER or self.least_open):
+            one, many = f"a positive {noun}", f"positive {noun}s"
+        elif noun == INTEGER:
+            one, many = f"an integer >= {self.least}", f"integers >= {self.least}"
+        else:
+            one, many = f"a finite number >= {self.least}", f"finite numbers >= {self.least}"
+        text = f"a list of 2 {many}" if self.pair else one
+        return f"{text} {self.note}" if self.note else text
+
+    def check(self, value: Any) -> Any:
+        """``value`` normalised (Python int, float or a tuple of 2), or ConfigError naming the key."""
+        if self.kind == CHOICE:
+            if not isinstance(value, str) or value not in self.choices:
+                raise _fail(self.key, self.expected(), value)
+            return value
+        if self.kind == SWITCH:
+            if not isinstance(value, bool):
+                raise _fail(self.key, self.expected(), value)
+            return value
+        if self.kind == AUTO_SWITCH:
+            if not (isinstance(value, bool) or value == "auto"):
+                raise _fail(self.key, self.expected(), value)
+            return value
+        if not self.pair:
+            return self._one(value, self.expected())
+        if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__len__") or len(value) != 2:
+            raise _fail(self.key, self.expected(), value)
+        try:
+            return tuple(self._one(v, "") for v in value)
+        except _TooLarge:
+            raise
+        except ConfigError:
+            raise _fail(self.key, self.expected(), list(value)) from None
+
+    def _one(self, value: Any, expected: str) -> int | float:
+        """One integer or number, checked against ``least``, ``below`` and ``most``."""
+        if self.kind == INTEGER:
+            if not _is_int(value) or value < self.least:
+                raise _fail(self.key, expected, value)
+            self._within_bound(value)
+            return int(value)
+        if not _is_real(value) or not math.isfinite(float(value)) or not self._allows(float(value)):
+            raise _fail(self.key, expected, value)
+        self._within_bound(float(value))
+        return float(value)
+
+    def _allows(self, x: float) -> bool:
+        above_least = x > self.least if self.least_open else x >= self.least
+        return above_least and (self.below is None or x < self.below)
+
+    def _within_bound(self, value) -> None:
+        """Refuse a value above ``most``, naming the bound."""
+        if self.most is not None and value > self.most:
+            raise _TooLarge(f"config key '{self.key}': {_show(value)} is too large: at most {self.most:,} "
+                            f"({self.why})")
+
+
+def _learning_factor(key: str, towards: str) -> Field:
+    return Field(key, NUMBER, 1.5, f"learning factor towards {towards} best", least=0, most=10,
+                 why="learning factor")
+
+
+FIELDS: dict[str, Field] = {f.key: f for f in (
+    Field("orders", INTEGER, (3, 3), "orders k, l (degree + 1) along u, v", pair=True, least=2,
+          most=10, why="degree 9 at most", note="(order = degree + 1)", also="each <= its `net_size`"),
+    Field("net_size", INTEGER, (5, 5), "control points along u, v", pair=True, least=1, most=1000,
+          why="control points along one direction",
+          also=f"at least {SPHERE_MIN_V} along v for a sphere"),
+    Field("topology", CHOICE, "open", "shape of the parameter domain (closed directions are periodic); "
+          "auto: chosen from the cloud", choices=TOPOLOGIES, option="--topology"),
+    Field("strategy", CHOICE, "hybrid", "hybrid: the swarm searches knots and weights, least squares gives "
+          "the control points; full: the paper's search space (Eq. 10)", choices=STRATEGIES,
+          option="--strategy"),
+    Field("swarm.particles", INTEGER, 40, "swarm size", least=1, most=10_000, why="particles of the swarm",
+          also=f"particles x iterations <= {MAX_EVALUATIONS:,}", option="--particles"),
+    Field("swarm.iterations", INTEGER, 300, "generations of the swarm (rows of the error curve)", least=1,
+          most=100_000, why="generations of the swarm, rows of the error curve",
+          also=f"particles x iterations <= {MAX_EVALUATIONS:,}", option="--iterations"),
+    Field("swarm.inertia", NUMBER, 0.7, "w, the weight of a particle's previous velocity", least=0, most=10,
+          why="w; a swarm is stable below 1"),
+    _learning_factor("swarm.c1", "the swarm's"),
+    _learning_factor("swarm.c2", "the particle's own"),
+    Field("swarm.seed", INTEGER, 7, "seed of the random generator; the same seed gives the same fit",
+          least=0, most=2**64 - 1, why="a 64-bit seed", option="--seed"),
+    Field("smoothing", NUMBER, 1e-6, "relative weight of the control-net smoothness term for the classical "
+          "start; the swarm then chooses it by leave-one-out error", least=0, most=1e6,
+          why="relative weight of the smoothness term"),
+    Field("swarm_points", INTEGER, 1500, "at most this many points (a subsample) are seen by the swarm; "
+          "the final solve sees all", least=MIN_SWARM_POINTS, most=100_000,
+          why="points the swarm's fitness sees"),
+    Field("polish_iterations", INTEGER, 100, "rounds of parameter correction after the swarm (twice: before "
+          "and after the smoothing is chosen again)", least=0, most=10_000,
+          why="rounds of parameter correction"),
+    Field("tessellation", INTEGER, (101, 101), "mesh resolution along u, v", pair=True, least=2,
+          most=10_000, why="mesh vertices along one direction",
+          also=f"<= {MAX_TESSELLATION_VERTICES:,} vertices"),
+    Field("weight_bounds", NUMBER, (0.2, 5.0), "lowest and highest NURBS weight [lo, hi]", pair=True, least=0,
+          least_open=True, most=1e6, why="NURBS weights", also=f"{_number(MIN_WEIGHT_BOUND)} <= lo <= 1 <= hi"),
+    Field("min_knot_gap", NUMBER, 0.2, "smallest gap between knots, as a fraction of the uniform spacing",
+          least=0, least_open=True, below=1),
+    Field("cross_validation", SWITCH, True, "judge the swarm's particles by their leave-one-out error (each "
+          "point against the fit that did not see it) instead of the plain fit error"),
+    Field("refine", SWITCH, True, "after the polish, refine control points, weights and parameters jointly "
+          "(Levenberg-Marquardt), then polish again; kept only when the fit gains by it"),
+    Field("refine_iterations", INTEGER, 12, "at most this many Levenberg-Marquardt steps of that refinement "
+          "(it stops sooner once a step gains almost nothing)", least=0, most=10_000,
+          why="Levenberg-Marquardt steps of the joint refinement"),
+    Field("robust", SWITCH, True, "leave out gross outliers (far off the surface their neighbours describe) "
+          "and weigh every solve by a robust loss; the metrics still count every point"),
+    Field("parametrisation", CHOICE, "auto", "first parameters of an open patch: plane (a projection), "
+          "intrinsic (the cloud's own graph laid flat) or auto (the plane where the cloud is a height "
+          "field over it)", choices=PARAMETRISATIONS, option="--parametrisation"),
+    Field("trim", AUTO_SWITCH, "auto", "trim an open surface to the data's footprint: auto where the "
+          "footprint leaves a gap or a hole, true always, false never"),
+)}
+ALIASES = {"remove_outliers": "robust"}  # another name: the key it stands for
+
+
+def default(key: str) -> Any:
+    """The default of a key of :data:`FIELDS`."""
+    return FIELDS[key].default
 
 
 # ---- the schema ------------------------------------------------------------
 
+def _normalise(config, prefix: str, *names: str) -> None:
+    """Replace each field ``name`` of the frozen dataclass ``config`` by its value as checked
+    and normalised by the row ``prefix + name`` of :data:`FIELDS`."""
+    for name in names:
+        object.__setattr__(config, name, FIELDS[prefix + name].check(getattr(config, name)))
+
+
 @dataclass(frozen=True)
 class SwarmConfig:
-    """Particle swarm parameters (the paper's Eq. 1-2).
+    """Particle swarm parameters (the paper's Eq. 1-2); the keys ``swarm.*`` of :data:`FIELDS`.
 
-    particles, iterations: swarm size and number of generations (>= 1).
-    inertia: w, the weight of the previous velocity (>= 0).
-    c1, c2: learning factors towards the swarm's and the particle's best (>= 0).
-    seed: seed of the random generator (>= 0); the same seed gives the same fit.
+    particles, iterations: swarm size and number of generations.
+    inertia: w, the weight of the previous velocity.
+    c1, c2: learning factors towards the swarm's and the particle's best.
+    seed: seed of the random generator; the same seed gives the same fit.
     """
 
-    particles: int = 40
-    iterations: int = 300
-    inertia: float = 0.7
-    c1: float = 1.5
-    c2: float = 1.5
-    seed: int = 7
+    particles: int = default("swarm.particles")
+    iterations: int = default("swarm.iterations")
+    inertia: float = default("swarm.inertia")
+    c1: float = default("swarm.c1")
+    c2: float = default("swarm.c2")
+    seed: int = default("swarm.seed")
 
     def __post_init__(self) -> None:
-        def put(name, value):
-            object.__setattr__(self, name, value)
-
-        put("particles", _int("swarm.particles", self.particles, minimum=1, what="a positive integer"))
-        put("iterations", _int("swarm.iterations", self.iterations, minimum=1, what="a positive integer"))
-        for name in ("inertia", "c1", "c2"):
-            put(name, _float(f"swarm.{name}", getattr(self, name), what="a finite number >= 0",
-                             ok=lambda x: x >= 0))
-        put("seed", _int("swarm.seed", self.seed, minimum=0, what="an integer >= 0"))
+        _normalise(self, "swarm.", "particles", "iterations", "inertia", "c1", "c2", "seed")
         if self.particles * self.iterations > MAX_EVALUATIONS:
             raise ConfigError(f"config keys 'swarm.particles' x 'swarm.iterations': {self.particles:,} x "
                               f"{self.iterations:,} = {self.particles * self.iterations:,} fitness evaluations "
@@ -215,76 +344,46 @@ class SwarmConfig:
 
 @dataclass(frozen=True)
 class FitConfig:
-    """Everything a fit needs besides the points.
+    """Everything a fit needs besides the points; one field per key of :data:`FIELDS` (the
+    swarm's in :class:`SwarmConfig`), which says each one's meaning, default and bounds.
 
-    orders: (k, l), order = degree + 1, each >= 2 and <= the net size.
-    net_size: control points along u and v.
-    topology: open | cylinder | sphere | torus | auto.
-    strategy: "hybrid" (swarm over knots and weights, control points by least
-        squares) or "full" (the paper's Eq. 10 search space).
-    smoothing: relative weight of the control-net smoothness term (>= 0).
-    swarm_points: at most this many points (a subsample) are seen by the swarm.
-    polish_iterations: rounds of parameter correction after the swarm (>= 0).
-    tessellation: mesh resolution (n_u, n_v), each >= 2.
-    weight_bounds: (lo, hi) bounds on the NURBS weights, 0 < lo <= 1 <= hi.
-    min_knot_gap: minimum gap between knots, as a fraction of the uniform spacing.
-    cross_validation: judge the swarm's particles by their leave-one-out error (true)
-        or by the plain fit error on the points they were fitted to (false).
-    refine: after the polish, refine control points, weights and parameters jointly
-        (Levenberg-Marquardt), then polish again.
-    refine_iterations: at most this many Levenberg-Marquardt steps of that refinement
-        (>= 0); it stops sooner once a step lowers its objective by less than 1e-6.
-    robust: gross outliers judged locally before the fit (far from the surface their
-        neighbours describe, :mod:`psonurbs.fitting.outliers`) and a robust loss in every
-        solve (:mod:`psonurbs.fitting.robust`); the metrics still count every point. The
-        YAML key ``remove_outliers`` is an alias.
-    parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
-        (the cloud's own graph laid flat, then corrected from a coarse net to the
-        configured one) or "auto" (the plane where the cloud is a height field over it).
-    trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.footprint`):
-        "auto" where the footprint leaves part of the domain empty, true always, false never.
+    orders (k, l) and net_size are along u and v; orders = degrees + 1 (:attr:`degrees`).
+    robust: gross outliers judged locally before the fit (:mod:`psonurbs.fitting.outliers`)
+    and a robust loss in every solve (:mod:`psonurbs.fitting.robust`); the YAML key
+    ``remove_outliers`` is an alias. trim: :mod:`psonurbs.fitting.footprint`.
     """
 
-    orders: tuple[int, int] = (3, 3)
-    net_size: tuple[int, int] = (5, 5)
-    topology: str = "open"
-    strategy: str = "hybrid"
+    orders: tuple[int, int] = default("orders")
+    net_size: tuple[int, int] = default("net_size")
+    topology: str = default("topology")
+    strategy: str = default("strategy")
     swarm: SwarmConfig = field(default_factory=SwarmConfig)
-    smoothing: float = 1e-6
-    swarm_points: int = 1500
-    polish_iterations: int = 100
-    tessellation: tuple[int, int] = (101, 101)
-    weight_bounds: tuple[float, float] = (0.2, 5.0)
-    min_knot_gap: float = 0.2
-    cross_validation: bool = True
-    refine: bool = True
-    refine_iterations: int = 12
-    robust: bool = True
-    parametrisation: str = "auto"
-    trim: str | bool = "auto"
+    smoothing: float = default("smoothing")
+    swarm_points: int = default("swarm_points")
+    polish_iterations: int = default("polish_iterations")
+    tessellation: tuple[int, int] = default("tessellation")
+    weight_bounds: tuple[float, float] = default("weight_bounds")
+    min_knot_gap: float = default("min_knot_gap")
+    cross_validation: bool = default("cross_validation")
+    refine: bool = default("refine")
+    refine_iterations: int = default("refine_iterations")
+    robust: bool = default("robust")
+    parametrisation: str = default("parametrisation")
+    trim: str | bool = default("trim")
 
     def __post_init__(self) -> None:
-        def put(name, value):
-            object.__setattr__(self, name, value)
-
-        def order(v):
-            return _int("orders", v, minimum=2, what="")
-
-        def count(v):
-            return _int("net_size", v, minimum=1, what="")
-
-        put("orders", _pair("orders", self.orders, order, "integers >= 2 (order = degree + 1)"))
-        put("net_size", _pair("net_size", self.net_size, count, "positive integers"))
+        # Checked in this order, the rules between keys as soon as their keys are: the
+        # first error of a config with several is the one reported.
+        _normalise(self, "", "orders", "net_size")
         for direction, k, n in zip("uv", self.orders, self.net_size):
             if k > n:
                 raise ConfigError(
                     f"config key 'orders': order {k} in {direction} is larger than net_size {n}")
-        put("topology", _choice("topology", self.topology, TOPOLOGIES))
-        if self.topology == "sphere" and self.net_size[1] < 3:
-            raise ConfigError(f"config key 'net_size': a sphere needs at least 3 control points along v "
-                              f"(the first and last collapse to the poles), got {self.net_size[1]}")
-        put("parametrisation", _choice("parametrisation", self.parametrisation, PARAMETRISATIONS))
-        put("strategy", _choice("strategy", self.strategy, STRATEGIES))
+        _normalise(self, "", "topology")
+        if self.topology == "sphere" and self.net_size[1] < SPHERE_MIN_V:
+            raise ConfigError(f"config key 'net_size': a sphere needs at least {SPHERE_MIN_V} control points "
+                              f"along v (the first and last collapse to the poles), got {self.net_size[1]}")
+        _normalise(self, "", "parametrisation", "strategy")
         swarm = self.swarm
         if swarm is None:
             swarm = SwarmConfig()
@@ -292,37 +391,19 @@ class FitConfig:
             swarm = _swarm_from_mapping(swarm)
         elif not isinstance(swarm, SwarmConfig):
             raise _fail("swarm", "a mapping", swarm)
-        put("swarm", swarm)
-        put("smoothing", _float("smoothing", self.smoothing, what="a finite number >= 0",
-                                ok=lambda x: x >= 0))
-        put("swarm_points", _int("swarm_points", self.swarm_points, minimum=MIN_SWARM_POINTS,
-                                 what=f"an integer >= {MIN_SWARM_POINTS}"))
-        put("polish_iterations", _int("polish_iterations", self.polish_iterations, minimum=0,
-                                      what="an integer >= 0"))
-        put("refine_iterations", _int("refine_iterations", self.refine_iterations, minimum=0,
-                                      what="an integer >= 0"))
-        put("tessellation", _pair("tessellation", self.tessellation,
-                                  lambda v: _int("tessellation", v, minimum=2, what=""),
-                                  "integers >= 2"))
+        object.__setattr__(self, "swarm", swarm)
+        _normalise(self, "", "smoothing", "swarm_points", "polish_iterations", "refine_iterations", "tessellation")
         vertices = self.tessellation[0] * self.tessellation[1]
         if vertices > MAX_TESSELLATION_VERTICES:
             raise ConfigError(f"config key 'tessellation': {self.tessellation[0]:,} x {self.tessellation[1]:,} = "
                               f"{vertices:,} mesh vertices is too many: at most {MAX_TESSELLATION_VERTICES:,}")
-        lo, hi = _pair("weight_bounds", self.weight_bounds,
-                       lambda v: _float("weight_bounds", v, what="", ok=lambda x: x > 0),
-                       "positive numbers")
+        _normalise(self, "", "weight_bounds")
+        lo, hi = self.weight_bounds
         if not lo <= 1.0 <= hi:
             raise _fail("weight_bounds", "[lo, hi] with 0 < lo <= 1 <= hi", [lo, hi])
         if lo < MIN_WEIGHT_BOUND:
             raise ConfigError(f"config key 'weight_bounds': {_show(lo)} is too small: at least {MIN_WEIGHT_BOUND:g}")
-        put("weight_bounds", (lo, hi))
-        put("min_knot_gap", _float("min_knot_gap", self.min_knot_gap,
-                                   what="a number in (0, 1)", ok=lambda x: 0 < x < 1))
-        for name in ("cross_validation", "refine", "robust"):
-            if not isinstance(getattr(self, name), bool):
-                raise _fail(name, "true or false", getattr(self, name))
-        if not (isinstance(self.trim, bool) or self.trim == "auto"):
-            raise _fail("trim", "auto, true or false", self.trim)
+        _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim")
 
     @property
     def degrees(self) -> tuple[int, int]:
@@ -363,7 +444,6 @@ class FitConfig:
 
 
 _TOP_KEYS = tuple(f.name for f in dataclasses.fields(FitConfig))
-ALIASES = {"remove_outliers": "robust"}  # an older name: the key it stands for
 _SWARM_KEYS = tuple(f.name for f in dataclasses.fields(SwarmConfig))
 
 
@@ -516,3 +596,211 @@ def load_config(path: str | os.PathLike | None) -> FitConfig:
 
 def _cut(text: str, length: int) -> str:
     return text if len(text) <= length else text[:length] + "..."
+
+
+# ---- the tables, rendered ----------------------------------------------------
+# The README's configuration table and docs/configuration.md are made from FIELDS and
+# the limits above (python3 -m psonurbs.config --readme README.md, --docs
+# docs/configuration.md); tests/test_config.py checks that both are as rendered.
+
+README_START = "<!-- config-table: generated by python3 -m psonurbs.config --readme -->"
+README_END = "<!-- /config-table -->"
+DOCS_PATH = "docs/configuration.md"
+
+
+def yaml_text(value: Any) -> str:
+    """A default as it is written in YAML: ``[3, 3]``, ``1e-6``, ``true``, ``open``."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(yaml_text(v) for v in value) + "]"
+    if isinstance(value, float):
+        return _exponent(repr(value))
+    return str(value)
+
+
+def kind_text(f: Field) -> str:
+    """The table's type column: integer, 2 numbers, string, boolean, ..."""
+    kind = {CHOICE: "string", SWITCH: "boolean", AUTO_SWITCH: "`auto` or boolean"}.get(f.kind, f.kind)
+    return f"2 {kind}s" if f.pair else kind
+
+
+def allowed_text(f: Field) -> str:
+    """The table's allowed-values column: the words of a choice, or the range and bound of a
+    number (each item of a pair), then the rule between keys."""
+    if f.kind in (CHOICE, SWITCH, AUTO_SWITCH):
+        words = {SWITCH: ("true", "false"), AUTO_SWITCH: ("auto", "true", "false")}.get(f.kind, f.choices)
+        return ", ".join(f"`{w}`" for w in words)
+    if f.below is not None:
+        parts = [f"in {'(' if f.least_open else '['}{_number(f.least)}, {_number(f.below)})"]
+    else:
+        parts = [f"{'>' if f.least_open else '>='} {_number(f.least)}"]
+    if f.most is not None:
+        parts.append(f"<= {_number(f.most)}")
+    text = ("each " if f.pair else "") + ", ".join(parts)
+    return f"{text}; {f.also}" if f.also else text
+
+
+def option_help(key: str) -> str:
+    """The --help of the ``psonurbs fit`` option that overrides ``key``."""
+    f = FIELDS[key]
+    return f"Override {key} (default {yaml_text(f.default)}): {f.help}."
+
+
+def _row(*cells: str) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def render_readme_table() -> str:
+    """The README's configuration table (markdown, ending in a newline): one row per key of
+    :data:`FIELDS`, then the aliases."""
+    lines = [_row("key", "type", "default", "allowed", "meaning"), "|---|---|---|---|---|"]
+    for f in FIELDS.values():
+        meaning = f"{f.help}; command line: `{f.option}`" if f.option else f.help
+        lines.append(_row(f"`{f.key}`", kind_text(f), f"`{yaml_text(f.default)}`", allowed_text(f), meaning))
+    for alias, key in ALIASES.items():
+        lines.append(_row(f"`{alias}`", kind_text(FIELDS[key]), "", allowed_text(FIELDS[key]),
+                          f"another name for `{key}`; giving both with different values is an error"))
+    return "\n".join(lines) + "\n"
+
+
+def with_readme_table(readme: str) -> str:
+    """``readme`` with the text between :data:`README_START` and :data:`README_END` replaced
+    by :func:`render_readme_table` (ValueError when a marker is missing)."""
+    start, end = readme.index(README_START) + len(README_START), readme.index(README_END)
+    return readme[:start] + "\n" + render_readme_table() + readme[end:]
+
+
+def _refusal(d: Mapping) -> str:
+    """The error line ``psonurbs fit -c cfg.yaml`` prints for a config holding ``d``."""
+    try:
+        config_from_dict(d, source="cfg.yaml")
+    except ConfigError as e:
+        return f"psonurbs: error: {e}"
+    raise ValueError(f"{d} is a valid config")
+
+
+def _paragraph(text: str) -> str:
+    return textwrap.fill(text, 90, break_long_words=False, break_on_hyphens=False)
+
+
+def render_configuration_doc() -> str:
+    """docs/configuration.md in full: the keys, their bounds, the rules between them, the
+    memory budget (:mod:`psonurbs.fitting.budget`) and the limits on the YAML file."""
+    bounds = [_row("key", "at most", "what the bound protects"), "|---|---|---|"]
+    bounds += [_row(f"`{f.key}`", _number(f.most) + (" each" if f.pair else ""), f.why)
+               for f in FIELDS.values() if f.most is not None]
+    rules: dict[str, list[str]] = {}  # a rule between keys -> the keys that say it
+    for f in FIELDS.values():
+        if f.also:
+            rules.setdefault(f.also, []).append(f"`{f.key}`")
+    examples = [_refusal({"swarm": {"particles": -3}}), _refusal({"swarm": {"partciles": 3}}),
+                _refusal({"orders": [6, 3], "net_size": [5, 5]}), _refusal({"swarm": {"iterations": 10**9}}),
+                _refusal({"swarm": {"particles": 5000, "iterations": 5000}})]
+    limit = f"{ARRAY_LIMIT / 2**30:g} GiB"
+    return "\n".join([
+        "# Configuration",
+        "",
+        f"<!-- generated by python3 -m psonurbs.config --docs {DOCS_PATH}: edit the table in "
+        "psonurbs/config.py, not this file -->",
+        "",
+        _paragraph("A fit is configured by a YAML file in the paper's names (`psonurbs fit CLOUD -c "
+                   "CFG.yaml`). Every key is optional: a missing key, or an empty file, takes the default "
+                   "below. The swarm's keys are nested under `swarm:`; a dotted key of the table "
+                   "(`swarm.seed`) is `seed:` under `swarm:`. A fit's JSON output repeats the whole "
+                   "config it was fitted with under `config`."),
+        "",
+        "## Keys",
+        "",
+        render_readme_table().rstrip("\n"),
+        "",
+        "## Validation",
+        "",
+        _paragraph("Validation is strict, and the message names the file and the key: an unknown key "
+                   "(with the nearest known one as a hint), a value of the wrong type, a value out of its "
+                   "range and a key given twice are errors, and no cloud is fitted (exit 2). `true` is "
+                   "not an integer, an integer is accepted where a number is expected, and `1e-4` is a "
+                   "number (as in YAML 1.2). The command-line options named in the table override the "
+                   "file and are checked by the same rules; their errors name `command-line options`. "
+                   "For example:"),
+        "",
+        *[f"    {line}" for line in examples],
+        "",
+        "## Bounds",
+        "",
+        _paragraph("Every size has an upper bound, so that no value can make a fit allocate or compute "
+                   "without end; the message names it:"),
+        "",
+        *bounds,
+        "",
+        "Between keys:",
+        "",
+        *[f"- {', '.join(keys)}: {rule}" for rule, keys in rules.items()],
+        "",
+        "## Budget",
+        "",
+        _paragraph("What the keys imply together is judged before anything is allocated "
+                   "(`psonurbs/fitting/budget.py`): for the config alone before any cloud is read (a "
+                   "refusal is exit 2 and nothing is fitted), then for each cloud with its N points (that "
+                   "cloud is reported unusable; the others are still fitted). With n = `net_size[0] x "
+                   "net_size[1]` control points and orders k, l, the largest arrays of a fit, in 8-byte "
+                   "floats, are:"),
+        "",
+        _row("array", "size"),
+        "|---|---|",
+        _row("the least-squares solve's normal matrix", "n x n"),
+        _row("the joint refinement's matrix (`refine: true`)", "4n x 4n"),
+        _row("the full strategy's constraints (`strategy: full`)",
+             "2D x D, D = 4n + (net_size[0] - k) + (net_size[1] - l) + 2N"),
+        _row("the basis rows", "N x k l"),
+        _row("the mesh", "the tessellation's vertices with their faces and OBJ text"),
+        "",
+        _paragraph(f"A fit is refused when one of them would take more than {limit} (the message names "
+                   "the array, its estimated size and the keys that shrink it), and when the net has more "
+                   f"control points than {NET_PER_POINT} per point of the cloud (at least {NET_FLOOR} are "
+                   "always allowed): beyond that the smoothness term, not the data, decides the surface. "
+                   f"A cloud with more points than the config can fit within {limit} is refused from its "
+                   "file's header, before it is read."),
+        "",
+        "## The YAML file",
+        "",
+        _paragraph(f"A config file is at most {MAX_CONFIG_BYTES / 2**20:.0f} MiB of UTF-8 text (a byte "
+                   "order mark is allowed) and must be a regular file: a directory or a named pipe is "
+                   "refused. Its YAML is read safely (no tag builds an object) and may hold at most "
+                   f"{MAX_ALIASES} aliases, {MAX_NODES:,} values once the aliases are expanded, and "
+                   f"{MAX_DEPTH} levels of nesting; each limit is checked while the document is read, "
+                   f"before anything is built. A value quoted in a message is cut to about "
+                   f"{SHOWN_CHARACTERS} characters."),
+        "",
+    ])
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python3 -m psonurbs.config``: print or rewrite the README's table, write the docs."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python3 -m psonurbs.config",
+                                     description="Render the configuration tables from psonurbs/config.py.")
+    parser.add_argument("--readme", nargs="?", const="-", metavar="README.md",
+                        help="print the README's configuration table, or rewrite it in README.md "
+                             "between its marker lines")
+    parser.add_argument("--docs", metavar="PATH", help=f"write the configuration doc ({DOCS_PATH})")
+    args = parser.parse_args(argv)
+    if args.readme is None and args.docs is None:
+        parser.error("give --readme and/or --docs")
+    if args.readme == "-":
+        print(render_readme_table(), end="")
+    elif args.readme is not None:
+        with open(args.readme, encoding="utf-8") as file:
+            text = file.read()
+        if README_START not in text or README_END not in text:
+            parser.error(f"{args.readme} lacks the marker lines {README_START} and {README_END}")
+        with open(args.readme, "w", encoding="utf-8") as file:
+            file.write(with_readme_table(text))
+    if args.docs is not None:
+        with open(args.docs, "w", encoding="utf-8") as file:
+            file.write(render_configuration_doc())
+
+
+if __name__ == "__main__":
+    main()

@@ -261,3 +261,120 @@ def test_config_with_a_byte_order_mark_is_read(tmp_path):
     path = tmp_path / "cfg.yaml"
     path.write_bytes(b"\xef\xbb\xbfswarm: {particles: 3}\n")
     assert load_config(path).swarm.particles == 3
+
+
+# ---- the table of fields: defaults, validation and the rendered docs --------------
+
+def test_the_table_has_one_row_per_key_in_the_dataclasses_order():
+    from psonurbs.config import FIELDS
+
+    keys = []
+    for key, value in FitConfig().to_dict().items():
+        keys += [f"swarm.{name}" for name in value] if key == "swarm" else [key]
+    assert list(FIELDS) == keys
+
+
+def test_the_dataclasses_defaults_are_the_tables():
+    from psonurbs.config import FIELDS
+
+    config = FitConfig()
+    for key, row in FIELDS.items():
+        owner = config.swarm if key.startswith("swarm.") else config
+        assert getattr(owner, row.name) == row.default, key
+
+
+def test_every_key_is_checked_by_its_row():
+    from psonurbs.config import FIELDS
+
+    for key, row in FIELDS.items():
+        bad = "x" if row.kind == "number" else 0.5
+        d = {"swarm": {row.name: bad}} if key.startswith("swarm.") else {key: [bad, bad] if row.pair else bad}
+        with pytest.raises(ConfigError) as info:
+            config_from_dict(d)
+        assert str(info.value).startswith(f"config key '{key}': expected {row.expected()}, got "), key
+
+
+# A value above its bound, and the keys that let the bound itself pass.
+ABOVE_BOUND = {"orders": {"net_size": [12, 12]}, "swarm.particles": {"swarm": {"iterations": 1}},
+               "swarm.iterations": {"swarm": {"particles": 1}}, "tessellation": {}}
+
+
+def test_every_bound_of_the_table_is_enforced_and_named():
+    from psonurbs.config import FIELDS
+
+    for key, row in FIELDS.items():
+        if row.most is None:
+            continue
+        at, above = row.most, row.most + 1
+        if row.kind == "number" and key != "weight_bounds":
+            above = row.most * 1.5
+        extra = ABOVE_BOUND.get(key, {})
+
+        def config(value, key=key, row=row, extra=extra):
+            if key.startswith("swarm."):
+                return config_from_dict({"swarm": {**extra.get("swarm", {}), row.name: value}})
+            value = ([row.default[0], value] if key != "weight_bounds" else [0.5, value]) if row.pair else value
+            return config_from_dict({**extra, key: value})
+
+        config(at)  # the bound itself is allowed
+        with pytest.raises(ConfigError) as info:
+            config(above)
+        assert f"config key '{key}': " in str(info.value) and f"is too large: at most {row.most:,} ({row.why})" \
+            in str(info.value), key
+
+
+def test_the_fit_commands_overriding_options_come_from_the_table():
+    from psonurbs.cli.main import fit
+    from psonurbs.config import FIELDS, option_help
+
+    helps = {opt: getattr(param, "help", None) for param in fit.params for opt in param.opts}
+    for key, row in FIELDS.items():
+        if row.option:
+            assert helps[row.option] == option_help(key) and f"default {row.default}" in helps[row.option]
+    assert {"--seed", "--particles", "--iterations", "--topology", "--strategy", "--parametrisation"} <= {
+        row.option for row in FIELDS.values()}
+
+
+def test_the_readme_holds_the_rendered_configuration_table():
+    from psonurbs.config import README_END, README_START, render_readme_table
+
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert README_START in readme and README_END in readme, \
+        "README.md lacks the configuration table's marker lines"
+    between = readme[readme.index(README_START) + len(README_START):readme.index(README_END)]
+    assert between == "\n" + render_readme_table(), \
+        "README.md's configuration table is stale: run python3 -m psonurbs.config --readme README.md"
+
+
+def test_docs_configuration_is_as_rendered():
+    from psonurbs.config import DOCS_PATH, render_configuration_doc
+
+    assert (REPO / DOCS_PATH).read_text(encoding="utf-8") == render_configuration_doc(), \
+        f"{DOCS_PATH} is stale: run python3 -m psonurbs.config --docs {DOCS_PATH}"
+
+
+def test_the_rendered_table_has_a_row_per_key_and_alias():
+    from psonurbs.config import ALIASES, FIELDS, render_readme_table
+
+    rows = render_readme_table().splitlines()[2:]
+    assert [row.split(" | ")[0].strip("| `") for row in rows] == [*FIELDS, *ALIASES]
+    assert "| `swarm.particles` | integer | `40` | >= 1, <= 10,000;" in rows[4]
+    assert "| `smoothing` | number | `1e-6` | >= 0, <= 1e6 |" in rows[10]
+
+
+def test_the_module_regenerates_both_from_the_command_line(tmp_path):
+    import subprocess
+    import sys
+
+    from psonurbs.config import README_END, README_START, render_configuration_doc, render_readme_table
+
+    env_root = str(REPO)  # this checkout's psonurbs, as from a plain clone
+    printed = subprocess.run([sys.executable, "-m", "psonurbs.config", "--readme"], capture_output=True, text=True,
+                             cwd=tmp_path, env={"PYTHONPATH": env_root}, check=True).stdout
+    assert printed == render_readme_table()
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{README_START}\nold table\n{README_END}\nafter\n")
+    subprocess.run([sys.executable, "-m", "psonurbs.config", "--readme", str(readme), "--docs",
+                    str(tmp_path / "configuration.md")], cwd=tmp_path, env={"PYTHONPATH": env_root}, check=True)
+    assert readme.read_text() == f"# x\n\n{README_START}\n{render_readme_table()}{README_END}\nafter\n"
+    assert (tmp_path / "configuration.md").read_text() == render_configuration_doc()

@@ -1,7 +1,8 @@
 """What a fit will need, judged before it starts: the largest array a config implies.
 
-Each size key has its own bound (:data:`psonurbs.config.BOUNDS`); this module judges
-what they imply together, for a cloud of N points, before anything is allocated. The
+Each size key has its own bound (:data:`psonurbs.config.FIELDS`); this module judges
+what they imply together, for a cloud of N points, before anything is allocated, against
+the limits :mod:`psonurbs.config` sets (and docs/configuration.md states). The
 largest arrays of a fit, in 8-byte floats (n = control points, at most nu x nv):
 
     solve                 n x n            the normal matrix of the least-squares solve
@@ -19,13 +20,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from psonurbs.config import ARRAY_LIMIT, NET_FLOOR, NET_PER_POINT
 from psonurbs.errors import ConfigError, InputError
 
 __all__ = ["ARRAY_LIMIT", "NET_PER_POINT", "NET_FLOOR", "Estimate", "largest_arrays", "check_budget", "max_points"]
 
-ARRAY_LIMIT = 1 << 30  # bytes one array of a fit may take (1 GiB)
-NET_PER_POINT = 4  # control points per point of the cloud, at most ...
-NET_FLOOR = 100  # ... but never fewer than this many (16 points on the paper's 5 x 5 net are fine)
 MESH_BYTES_PER_VERTEX = 130
 
 
