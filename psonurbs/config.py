@@ -96,6 +96,14 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
+def _as_float(value: numbers.Real) -> float:
+    """The value as a float; a YAML integer beyond the float range is infinite, as ``.inf`` is."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def _exponent(text: str) -> str:
     """'1e-06' -> '1e-6', '1e+06' -> '1e6'."""
     return re.sub(r"e([+-])0*(\d)", lambda m: "e" + ("-" if m.group(1) == "-" else "") + m.group(2), text)
@@ -223,7 +231,7 @@ class Field:
                 raise _fail(self.key, expected, value)
             self._within_bound(value)
             return int(value)
-        if not _is_real(value) or not math.isfinite(float(value)) or not self._allows(float(value)):
+        if not _is_real(value) or not math.isfinite(_as_float(value)) or not self._allows(float(value)):
             raise _fail(self.key, expected, value)
         self._within_bound(float(value))
         return float(value)

@@ -378,3 +378,12 @@ def test_the_module_regenerates_both_from_the_command_line(tmp_path):
                     str(tmp_path / "configuration.md")], cwd=tmp_path, env={"PYTHONPATH": env_root}, check=True)
     assert readme.read_text() == f"# x\n\n{README_START}\n{render_readme_table()}{README_END}\nafter\n"
     assert (tmp_path / "configuration.md").read_text() == render_configuration_doc()
+
+
+def test_an_integer_beyond_the_float_range_is_a_config_error(tmp_path):
+    """A 401-digit integer for a number key is refused as ``.inf`` is, not an overflow."""
+    huge = error_of(tmp_path, "smoothing: 1" + "0" * 400 + "\n")
+    assert huge.startswith("cfg.yaml: config key 'smoothing': expected a finite number >= 0, got 1000")
+    assert "(401 digits)" in huge
+    negative = error_of(tmp_path, "weight_bounds: [-1" + "0" * 400 + ", 5]\n")
+    assert "config key 'weight_bounds': expected" in negative
