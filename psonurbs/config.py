@@ -235,13 +235,13 @@ class FitConfig:
     refine_iterations: at most this many Levenberg-Marquardt steps of that refinement
         (>= 0); it stops sooner once a step lowers its objective by less than 1e-6.
     robust: gross outliers judged locally before the fit (far from the surface their
-        neighbours describe, :mod:`psonurbs.fitting.outliers`) and a robust loss in every
-        solve (:mod:`psonurbs.fitting.robust`); the metrics still count every point. The
+        neighbours describe, :mod:`psonurbs.fitting.prepare.outliers`) and a robust loss in every
+        solve (:mod:`psonurbs.fitting.prepare.robust_weights`); the metrics still count every point. The
         YAML key ``remove_outliers`` is an alias.
     parametrisation: first parameters of an open patch: "plane" (projection), "intrinsic"
         (the cloud's own graph laid flat, then corrected from a coarse net to the
         configured one) or "auto" (the plane where the cloud is a height field over it).
-    trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.footprint`):
+    trim: trim an open surface to the data's footprint (:mod:`psonurbs.fitting.finish.footprint`):
         "auto" where the footprint leaves part of the domain empty, true always, false never.
     """
 

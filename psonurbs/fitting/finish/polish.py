@@ -8,12 +8,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from psonurbs.fitting.leastsq.regularised import weighted_rms
+from psonurbs.fitting.leastsq.stacked import least_squares_at
 from psonurbs.geometry.net import NetShape
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 from .footprint import ALPHA
-from .solve import weighted_rms
-from .stacked_solve import least_squares_at
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = 8) -> np.ndarray:
@@ -49,7 +49,7 @@ def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
     again; the few points past a straight edge's line are put on it.
 
     The sampling scatter of an edge is ``ALPHA`` spacings (the alpha shape's scale of a
-    sampling gap, :mod:`psonurbs.fitting.footprint`), the spacing s = sqrt(A / N) of N
+    sampling gap, :mod:`psonurbs.fitting.finish.footprint`), the spacing s = sqrt(A / N) of N
     points over the area A of their bounding box. Past an edge that is not straight
     the points reach farther, and putting them on a line through its extremes would
     squeeze a whole cap of the data onto the domain's edge: a bent parametrisation, in
