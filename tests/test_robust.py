@@ -162,9 +162,8 @@ def test_junk_steers_neither_the_projection_plane_nor_the_fit():
     normals = {name: np.asarray(f.info["parametrisation"]["normal"]) for name, f in fits.items()}
     deviation = {name: truth.query(f.surface.evaluate_grid(*f.surface.parameter_grid(60, 60)).reshape(-1, 3))[0]
                  / (0.002 * diag) for name, f in fits.items()}
-    # measured: the planes 5.7 degrees apart; truth rms 0.52 sigma (clean 0.48), max 2.4 (clean
-    # 2.2). With the junk judged against a global fit only (main before this): planes 16
-    # degrees apart, truth rms 0.64, max 6.8
+    # the planes come out 5.7 degrees apart, truth rms 0.52 sigma (clean 0.48), max 2.4 (clean 2.2);
+    # junk judged against a global fit only would tilt the plane 16 degrees, truth rms 0.64, max 6.8
     assert abs(normals["clean"] @ normals["junk"]) > np.cos(np.radians(8.0))
     assert np.sqrt(np.mean(deviation["junk"] ** 2)) < 1.2 * np.sqrt(np.mean(deviation["clean"] ** 2))
     assert deviation["junk"].max() < 4.0

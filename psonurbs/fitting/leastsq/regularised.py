@@ -25,6 +25,15 @@ weights (None) every number is the unweighted one.
 
 R comes as :class:`psonurbs.geometry.rows.Rows` (m non-zeros per row, grouped by
 knot-span cell), so ``R^T R`` and the leverages h_ii are sums of small dense blocks.
+
+This module is the computation's one definition, for one net; the swarm evaluates it
+for many particles at once by its two twins, the numpy
+:class:`psonurbs.fitting.leastsq.stacked.StackedLeastSquares` and the compiled
+:mod:`psonurbs.fitting.leastsq.stacked_compiled`, which take the constants below
+(:data:`CONSTRAINT_WEIGHT`, :data:`RIDGE`, :data:`LEVERAGE_FLOOR`) from here and scale
+the regulariser per particle as ``(lam / tr(L^T L)) t`` where this solver forms
+``lam t / tr(L^T L)``: the same numbers to rounding, each path's operations fixed so
+that a fit gives the same bits every time.
 """
 from __future__ import annotations
 

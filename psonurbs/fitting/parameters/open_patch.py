@@ -17,8 +17,7 @@ shows that the projection misrepresents the surface:
   more of the cells of the unit square than the projection (a twisted strip projects
   onto a bow tie: the square's corners would be extrapolated). Little is enough: a strip
   twisted by 90 degrees leaves 5% of the square empty, and its fit over the plane is 25
-  times farther from the true surface than over the intrinsic parameters
-  (``benchmarks/unseen.py``).
+  times farther from the true surface than over the intrinsic parameters.
 
 A height field over a rectangle, steep flanks and all, projects onto exactly its
 rectangle, which the unrolled surface (whose boundary curves where the surface

@@ -11,7 +11,7 @@ weight by the robust loss on that fit (judged with the local test's neighbourhoo
 whole cloud; the subsample's own fit weighs its points by the plain scale), and up to
 ``FINAL_ROUNDS`` rounds of parameter correction on the points kept, with the subsample's
 knots, weights and smoothing. The result is the fit
-of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted as before.
+of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted on all their points directly.
 """
 from __future__ import annotations
 

@@ -25,9 +25,9 @@ fit: started at the smoothing the leave-one-out error picks at the first paramet
 a steep cliff those cannot represent the step, so the pick is heavy), a classical
 candidate stays over-smoothed through its polish, and a swarm whose knots merely
 escape that handicap looks better than the classical fit the user would get. On a noisy
-cliff (benchmarks/feature_clouds.py) the swarm's candidate had 0.47 x the classical
-candidate's truth error while the fits the pipeline ends with are 1.38 x; finished
-this way, the candidates are 1.23 x.
+cliff a swarm's candidate at 0.47 x the classical candidate's truth error, judged
+unfinished, ends at 1.38 x once both are finished as the pipeline finishes them;
+finished this way, the candidates compare at 1.23 x.
 
 Point-to-surface distances see only where the points are. A polish of uniform knots on
 a steep step slides the points off a fold the surface makes, and the fold is invisible
