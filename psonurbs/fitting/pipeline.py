@@ -1,24 +1,24 @@
-"""The fitter: organise -> parametrise -> swarm -> polish (-> refine), for one cloud.
+"""The fitter, for one cloud: prepare -> parameters -> search -> finish.
 
 ``strategy: hybrid`` (default): the swarm searches what is non-linear (the inner knots
 of both directions, the weights and the smoothing weight); inside its fitness the
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-judged locally before anything is parametrised (:mod:`psonurbs.fitting.prepare.outliers`) and
-every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.prepare.robust_weights`). The best
-particle is kept only if it predicts the points the swarm never saw better than the
-classical start, by paired tests (:mod:`psonurbs.fitting.search.validation`); it is polished
-(parameter correction), the smoothing re-chosen by
-leave-one-out at the corrected parameters and polished again; then, with ``refine``,
-control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.finish.refine`),
-anchored to the data's edges and kept if the gain pays for the freed weights
-(:func:`pays_for_weights`), or, where the swarm's weights were free already, if it fits
-the points as well and ends nearer the data (:func:`ends_nearer`). ``strategy: full`` is
-the paper's own search space (Eq. 10, :mod:`psonurbs.fitting.search.paper_space`): the swarm's best surface is the result.
-The result is checked without ground truth (:mod:`psonurbs.fitting.finish.self_checks`: the surface
-or its net far outside the cloud's box, a fold, surface far from every point); a fit
-that fails a check carries warnings and says so in its notes.
+judged locally before anything is parametrised (:mod:`psonurbs.fitting.prepare.outliers`)
+and every solve weighs the rest by a robust loss
+(:mod:`psonurbs.fitting.prepare.robust_weights`). The best particle is kept only if it
+predicts the points the swarm never saw better than the classical start, by paired
+tests (:mod:`psonurbs.fitting.search.validation`); it is finished
+(:func:`psonurbs.fitting.finish.finishing.finish`: polished, the smoothing re-chosen by
+leave-one-out at the corrected parameters, polished again); then, with ``refine``,
+control points, weights and parameters are refined jointly and the result kept only if
+it earns it (:func:`psonurbs.fitting.finish.refine.refined_if_better`). ``strategy:
+full`` is the paper's own search space (Eq. 10, :mod:`psonurbs.fitting.search.paper_space`):
+the swarm's best surface is the result. The result is checked without ground truth
+(:mod:`psonurbs.fitting.finish.self_checks`: the surface or its net far outside the
+cloud's box, a fold, surface far from every point); a fit that fails a check carries
+warnings and says so in its notes.
 """
 from __future__ import annotations
 
