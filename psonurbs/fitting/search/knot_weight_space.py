@@ -1,14 +1,15 @@
-"""The hybrid encoding of the swarm: knots and weights in the particle, control points solved.
+"""The swarm's search space (``strategy: hybrid``): knots, weights and smoothing in the
+particle, control points solved.
 
 A particle is (inner knots along u, inner knots along v, log-weights of the free
-control points). For given knots and weights the surface is linear in its control
+control points, log10 of the smoothing). For given knots and weights the surface is linear in its control
 points, so they are never searched: the fitness solves for them by regularised least
 squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the robust
 loss's point weights when there are any (:mod:`psonurbs.fitting.prepare.robust_weights`).
 
 The swarm's fitness evaluates all particles of an iteration together
-(:mod:`psonurbs.fitting.leastsq.stacked`: by numpy, or its compiled twin with numba); :meth:`KnotWeightSpace.error` is the same
-number for one particle through the single solver (scipy design matrices, dense
+(:mod:`psonurbs.fitting.leastsq.stacked`: by numpy, or its compiled twin with numba);
+:meth:`KnotWeightSpace.error` is the same number for one particle through the single solver (scipy design matrices, dense
 Cholesky), used by the topology choice and the validation.
 """
 from __future__ import annotations
@@ -39,8 +40,8 @@ class Decoded(NamedTuple):
 
 
 class KnotWeightSpace:
-    """The hybrid encoding: a particle is (inner knots u, inner knots v, log-weights,
-    log10 smoothing).
+    """The knot and weight search space: a particle is (inner knots u, inner knots v,
+    log-weights, log10 smoothing).
 
     Control points are never in the particle: for given knots, weights and smoothing
     they are the least-squares solution, which the fitness computes. Judged by the
