@@ -356,9 +356,9 @@ class FitConfig:
     swarm's in :class:`SwarmConfig`), which says each one's meaning, default and bounds.
 
     orders (k, l) and net_size are along u and v; orders = degrees + 1 (:attr:`degrees`).
-    robust: gross outliers judged locally before the fit (:mod:`psonurbs.fitting.outliers`)
-    and a robust loss in every solve (:mod:`psonurbs.fitting.robust`); the YAML key
-    ``remove_outliers`` is an alias. trim: :mod:`psonurbs.fitting.footprint`.
+    robust: gross outliers judged locally before the fit (:mod:`psonurbs.fitting.prepare.outliers`)
+    and a robust loss in every solve (:mod:`psonurbs.fitting.prepare.robust_weights`); the YAML key
+    ``remove_outliers`` is an alias. trim: :mod:`psonurbs.fitting.finish.footprint`.
     """
 
     orders: tuple[int, int] = default("orders")

@@ -1,4 +1,4 @@
-"""Self-checks without ground truth (psonurbs.fitting.checks): quiet on good surfaces of
+"""Self-checks without ground truth (psonurbs.fitting.finish.self_checks): quiet on good surfaces of
 every topology, loud on a surface that flaps out of the box, folds or leaves the data,
 and reported through the CLI (a warning, the summary status, --fail-suspect)."""
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 from conftest import ply_bytes
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting.checks import MAX_FOLDED, check_fit, flipped_share
+from psonurbs.fitting.finish.self_checks import MAX_FOLDED, check_fit, flipped_share
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.parameters.topology import layout_for
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.fitting.solve import RegularisedLeastSquares
-from psonurbs.fitting.topology import layout_for
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim, polygon_loop
 

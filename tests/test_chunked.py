@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from psonurbs.fitting import refine
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.finish import refine
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry import nurbs, projection, rows
 from psonurbs.geometry.net import NetLayout
 

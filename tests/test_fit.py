@@ -167,7 +167,7 @@ def test_swarm_never_worse_than_classical_start(franke_fit):
 
 def dense_distances(s: NurbsSurface, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(nearest-vertex distance on a 400 x 400 grid, the same refined on a 21 x 21
-    sub-grid spanning the two cells around that vertex): independent of psonurbs.fitting.polish."""
+    sub-grid spanning the two cells around that vertex): independent of psonurbs.fitting.finish.polish."""
     us, vs = s.parameter_grid(400, 400)
     grid = s.evaluate_grid(us, vs).reshape(-1, 3)
     coarse, k = cKDTree(grid).query(pts)
@@ -237,7 +237,7 @@ def test_full_strategy_on_sixteen_points():
 
 
 def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
-    from psonurbs.fitting.pipeline import pays_for_weights
+    from psonurbs.fitting.finish.refine import pays_for_weights
 
     rng = np.random.default_rng(0)
     before = np.abs(rng.normal(0, 1e-3, 5000))
@@ -249,7 +249,7 @@ def test_refinement_is_kept_only_when_its_gain_pays_for_the_weights():
 
 
 def test_a_cloud_the_swarm_would_see_whole_keeps_points_for_its_validation():
-    from psonurbs.fitting.validation import HELD_OUT, swarm_points_of
+    from psonurbs.fitting.search.validation import HELD_OUT, swarm_points_of
 
     seen = np.arange(1089)  # a 33 x 33 grid under the default swarm_points: the sample is every point
     swarms = swarm_points_of(seen, 1089)
@@ -264,16 +264,16 @@ def test_a_cloud_the_swarm_would_see_whole_keeps_points_for_its_validation():
 
 
 def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_worse():
-    from psonurbs.fitting.hybrid import KnotWeightSearch
-    from psonurbs.fitting.solve import RegularisedLeastSquares
-    from psonurbs.fitting.validation import held_out_choice
+    from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+    from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
+    from psonurbs.fitting.search.validation import held_out_choice
 
     pts = franke(n=3000, seed=12, noise=0.01)
     layout = NetLayout((8, 8), (4, 4))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
     uv = pts[:, :2].copy()  # the franke samples are a height field over [0, 1]^2
     seen = np.arange(1000)
-    search = KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+    search = KnotWeightSpace(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
     classical = search.classical()
     crowded = classical.copy()
     cu, _ = layout.inner_counts
@@ -291,8 +291,8 @@ def test_validation_keeps_the_classical_knots_when_the_best_fits_unseen_points_w
 def _cliff_search():
     """A cliff across u = 0.6 (3,000 points at their true parameters, an 8 x 5 cubic net),
     and the swarm's search over its first 1,000 points."""
-    from psonurbs.fitting.hybrid import KnotWeightSearch
-    from psonurbs.fitting.solve import RegularisedLeastSquares
+    from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+    from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 
     rng = np.random.default_rng(5)
     uv = rng.random((3000, 2))
@@ -300,11 +300,11 @@ def _cliff_search():
     layout = NetLayout((8, 5), (3, 3))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
     seen = np.arange(1000)
-    return layout, pts, uv, seen, KnotWeightSearch(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
+    return layout, pts, uv, seen, KnotWeightSpace(layout, solver, pts[seen], uv[seen], True, 0.2, (0.2, 5.0))
 
 
 def test_validation_keeps_knots_placed_at_a_steep_step():
-    from psonurbs.fitting.validation import held_out_choice
+    from psonurbs.fitting.search.validation import held_out_choice
 
     layout, pts, uv, seen, search = _cliff_search()
     at_step = search.classical()
@@ -326,9 +326,9 @@ def test_validation_keeps_knots_placed_at_a_steep_step():
 
 
 def test_the_validation_finishes_the_classical_start_along_the_pipelines_smoothing_path():
-    from psonurbs.fitting.hybrid import loo_smoothing
-    from psonurbs.fitting.polish import polish
-    from psonurbs.fitting.validation import finished_candidate, held_out_choice
+    from psonurbs.fitting.finish.finishing import FitPoints, finish, loo_smoothing
+    from psonurbs.fitting.finish.polish import polish
+    from psonurbs.fitting.search.validation import held_out_choice
 
     layout, pts, uv, seen, search = _cliff_search()
     solver = search.solver
@@ -345,13 +345,13 @@ def test_the_validation_finishes_the_classical_start_along_the_pipelines_smoothi
     corrected = polish(layout, solver, pts[fitted], uv[fitted], shape, 10).uv
     again = solver.with_smoothing(loo_smoothing(layout, solver, pts[seen], corrected[:1000], shape))
     by_hand = polish(layout, again, pts[fitted], corrected, shape, 10).surface
-    by_finished = finished_candidate(layout, solver, pts[fitted], uv[fitted], shape, 1000, 10)
+    by_finished = finish(layout, solver, FitPoints(pts[fitted], uv[fitted], slice(0, 1000)), shape, 10).surface
     g = np.linspace(0.0, 1.0, 9)
     assert np.array_equal(by_finished.evaluate_grid(g, g), by_hand.evaluate_grid(g, g))
 
 
 def test_paired_test_measures_the_gain_in_standard_errors():
-    from psonurbs.fitting.validation import Validation, Z, paired_test
+    from psonurbs.fitting.search.validation import Validation, Z, paired_test
 
     rng = np.random.default_rng(0)
     noise = np.abs(rng.normal(0.0, 1.0, 4000))
@@ -380,7 +380,7 @@ def test_paired_test_measures_the_gain_in_standard_errors():
 
 
 def test_a_refined_surface_that_ends_on_the_data_is_preferred_to_one_that_runs_past_it():
-    from psonurbs.fitting.pipeline import ends_nearer
+    from psonurbs.fitting.finish.refine import ends_nearer
     from psonurbs.geometry.basis import clamped_knots
 
     def plate(lo, hi):  # the plane z = 0.1 x over [lo, hi]^2, a bicubic patch

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from psonurbs.fitting import footprint as footprint_module
-from psonurbs.fitting.footprint import footprint, footprint_notes, well_spread
+from psonurbs.fitting.finish import footprint as footprint_module
+from psonurbs.fitting.finish.footprint import footprint, footprint_notes, well_spread
 from psonurbs.geometry.basis import clamped_knots
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import signed_area

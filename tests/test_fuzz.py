@@ -83,7 +83,7 @@ def configs(draw) -> str | None:
             "swarm: " + "{a: " * 200 + "1" + "}" * 200 + "\n",
             "swarm: &s {particles: 3}\nrefine: *s\n",
             "orders: !!python/object:os.system [ls]\n",
-            "orders: !!binary aGVsbG8=\n", "net_size: 2001-01-01\n", "? [1, 2]\n: 3\n",
+            "orders: !!binary aGVsbG8=\n", "net_size: 1999-01-01\n", "? [1, 2]\n: 3\n",
             "\ufeffswarm: {particles: 3, iterations: 2}\n", "orders: [3, 3\n", "\x00\x01\x02", "- 1\n- 2\n",
             "swarm:\n  particles: " + "9" * 5000 + "\n", "topology: " + "y" * 100_000 + "\n",
             "net_size: [40, 40]\n", "net_size: [200, 200]\n", "tessellation: [100000, 100000]\n",

@@ -1,4 +1,4 @@
-"""Intrinsic first parameters of open surfaces (psonurbs.fitting.intrinsic), the choice
+"""Intrinsic first parameters of open surfaces (psonurbs.fitting.parameters.intrinsic), the choice
 between them and a plane projection (open_parameters), and the coarse-to-fine correction."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from conftest import franke
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting.coarse_to_fine import coarse_to_fine, ladder
-from psonurbs.fitting.intrinsic import (
+from psonurbs.fitting.parameters.coarse_to_fine import coarse_to_fine, ladder
+from psonurbs.fitting.parameters.intrinsic import (
     geodesic_embedding,
     parametrise_intrinsic,
     reversed_points,
@@ -16,9 +16,9 @@ from psonurbs.fitting.intrinsic import (
     rigid_embedding,
     surface_graph,
 )
-from psonurbs.fitting.open_parameters import fill, parametrise_open_patch
-from psonurbs.fitting.parametrise import parametrise_open
-from psonurbs.fitting.topology import choose_topology
+from psonurbs.fitting.parameters.open_patch import fill, parametrise_open_patch
+from psonurbs.fitting.parameters.plane import parametrise_open
+from psonurbs.fitting.parameters.topology import choose_topology
 from psonurbs.geometry.basis import uniform_inner_knots
 from psonurbs.geometry.net import NetLayout
 

@@ -1,4 +1,4 @@
-"""The local test of gross outliers (psonurbs.fitting.outliers): normal noise is never an
+"""The local test of gross outliers (psonurbs.fitting.prepare.outliers): normal noise is never an
 outlier (nor the thin edge of a graded cloud, nor structured sampling), junk in the
 bounding box and a floating blob are, and a separate piece is not chained to the surface."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import franke_z
 
-from psonurbs.fitting.outliers import (
+from psonurbs.fitting.prepare.outliers import (
     MIN_POINTS,
     NEIGHBOURS,
     Neighbourhoods,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from psonurbs.fitting.polish import AndersonMixing
-from psonurbs.fitting.refine import refine_jointly
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.finish.polish import AndersonMixing
+from psonurbs.fitting.finish.refine import refine_jointly
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout, NetShape
 
 
@@ -58,8 +58,8 @@ def test_anderson_mixing_differences_a_closed_direction_across_the_seam():
 
 
 def test_only_directions_with_edges_are_aligned_to_the_domain():
-    from psonurbs.fitting.polish import align_to_domain
-    from psonurbs.fitting.topology import layout_for
+    from psonurbs.fitting.finish.polish import align_to_domain
+    from psonurbs.fitting.parameters.topology import layout_for
 
     rng = np.random.default_rng(5)
     uv = np.c_[rng.uniform(0.1, 0.9, 400), rng.uniform(0.05, 0.8, 400)]
@@ -104,8 +104,8 @@ def test_a_curved_edge_is_aligned_without_bending_the_parameters():
     parameters by up to 0.069 from an affine map, with 87-131 points on each edge); the
     edges are the data's extremes instead: the map is affine, the data span [0, 1] and
     one point is on each edge."""
-    from psonurbs.fitting.polish import align_to_domain
-    from psonurbs.fitting.topology import layout_for
+    from psonurbs.fitting.finish.polish import align_to_domain
+    from psonurbs.fitting.parameters.topology import layout_for
 
     rng = np.random.default_rng(2)
     uv = rng.random((8000, 2))
@@ -123,8 +123,8 @@ def test_a_straight_edge_puts_the_points_past_its_line_on_the_domain_edge():
     """A rectangle's edges, the parameters jittered by a tenth of the spacing: the lines
     through the edges' extremes are the edges, and the few points past them go onto the
     domain's edges (a straight edge is aligned as it always was)."""
-    from psonurbs.fitting.polish import align_to_domain
-    from psonurbs.fitting.topology import layout_for
+    from psonurbs.fitting.finish.polish import align_to_domain
+    from psonurbs.fitting.parameters.topology import layout_for
 
     rng = np.random.default_rng(4)
     uv = 0.1 + 0.8 * rng.random((4000, 2)) + rng.normal(0.0, 0.1 * 0.8 / 63, (4000, 2))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry import compiled, projection
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import GridStart, closest_parameters

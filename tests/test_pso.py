@@ -1,4 +1,4 @@
-"""Particle swarm (psonurbs.fitting.pso): convergence on a known minimum, monotone best
+"""Particle swarm (psonurbs.fitting.search.swarm): convergence on a known minimum, monotone best
 history, feasibility of every evaluated position, determinism, and the closed-form
 largest feasible step."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from psonurbs.fitting.pso import Polytope, minimise
+from psonurbs.fitting.search.swarm import Polytope, minimise
 
 
 def shifted_sphere(centre):

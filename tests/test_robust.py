@@ -1,4 +1,4 @@
-"""The robust loss (psonurbs.fitting.robust): the biweight and its scale, the reweighted
+"""The robust loss (psonurbs.fitting.prepare.robust_weights): the biweight and its scale, the reweighted
 classical fit, and whole fits with junk: what is left out, what the surface does."""
 from __future__ import annotations
 
@@ -10,10 +10,16 @@ from conftest import franke, franke_z
 from scipy.spatial import cKDTree
 from test_fit import config
 
-from psonurbs.fitting.outliers import Neighbourhoods
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.fitting.robust import CUTOFF_SIGMAS, VOUCHED_FLOOR, biweights, classical_weights, kept_sample
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.prepare.outliers import Neighbourhoods
+from psonurbs.fitting.prepare.robust_weights import (
+    CUTOFF_SIGMAS,
+    VOUCHED_FLOOR,
+    biweights,
+    classical_weights,
+    kept_sample,
+)
 from psonurbs.geometry.net import NetLayout
 
 
@@ -156,9 +162,8 @@ def test_junk_steers_neither_the_projection_plane_nor_the_fit():
     normals = {name: np.asarray(f.info["parametrisation"]["normal"]) for name, f in fits.items()}
     deviation = {name: truth.query(f.surface.evaluate_grid(*f.surface.parameter_grid(60, 60)).reshape(-1, 3))[0]
                  / (0.002 * diag) for name, f in fits.items()}
-    # measured: the planes 5.7 degrees apart; truth rms 0.52 sigma (clean 0.48), max 2.4 (clean
-    # 2.2). With the junk judged against a global fit only (main before this): planes 16
-    # degrees apart, truth rms 0.64, max 6.8
+    # the planes come out 5.7 degrees apart, truth rms 0.52 sigma (clean 0.48), max 2.4 (clean 2.2);
+    # junk judged against a global fit only would tilt the plane 16 degrees, truth rms 0.64, max 6.8
     assert abs(normals["clean"] @ normals["junk"]) > np.cos(np.radians(8.0))
     assert np.sqrt(np.mean(deviation["junk"] ** 2)) < 1.2 * np.sqrt(np.mean(deviation["clean"] ** 2))
     assert deviation["junk"].max() < 4.0
@@ -168,7 +173,7 @@ def test_junk_steers_neither_the_projection_plane_nor_the_fit():
 def test_the_weighted_paired_test_reduces_to_the_plain_one():
     """Unit weights give the plain paired test; weight 0 on a point is the test without it;
     the weighted mean and spread of d follow sum w d / sum w with n_eff = (sum w)^2 / sum w^2."""
-    from psonurbs.fitting.validation import paired_test
+    from psonurbs.fitting.search.validation import paired_test
     rng = np.random.default_rng(5)
     classical, swarm = np.abs(rng.normal(1.0, 0.3, 200)), np.abs(rng.normal(0.95, 0.3, 200))
     plain = paired_test(classical, swarm)

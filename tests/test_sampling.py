@@ -1,4 +1,4 @@
-"""Big clouds (psonurbs.fitting.sampling): fitted on a subsample holding the swarm's
+"""Big clouds (psonurbs.fitting.prepare.big_clouds): fitted on a subsample holding the swarm's
 points, finished on every point. The subsample size is made small here so that a
 cloud of a few thousand points is a big one."""
 from __future__ import annotations
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting import sampling
-from psonurbs.fitting.organise import organise
 from psonurbs.fitting.pipeline import fit_points
+from psonurbs.fitting.prepare import big_clouds
+from psonurbs.fitting.prepare.organise import organise
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import closest_parameters
 
@@ -20,16 +20,16 @@ def config(**kw):
 
 
 def test_the_subsample_holds_the_swarm_points_and_is_fixed(monkeypatch):
-    monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 500)
+    monkeypatch.setattr(big_clouds, "SUBSAMPLE_POINTS", 500)
     swarm = np.sort(np.random.default_rng(0).choice(3000, 300, replace=False))
-    assert sampling.big_cloud_sample(500, swarm[:100]) is None
-    big = sampling.big_cloud_sample(3000, swarm)
+    assert big_clouds.big_cloud_sample(500, swarm[:100]) is None
+    big = big_clouds.big_cloud_sample(3000, swarm)
     assert len(big) == 500 and np.all(np.diff(big) > 0) and np.isin(swarm, big).all()
-    np.testing.assert_array_equal(big, sampling.big_cloud_sample(3000, swarm))
+    np.testing.assert_array_equal(big, big_clouds.big_cloud_sample(3000, swarm))
     # swarm_points above the subsample's size: the swarm's sample is the subsample
     many = np.random.default_rng(1).permutation(3000)[:800]
-    np.testing.assert_array_equal(sampling.big_cloud_sample(3000, many), np.sort(many))
-    assert sampling.big_cloud_sample(800, np.arange(800)) is None
+    np.testing.assert_array_equal(big_clouds.big_cloud_sample(3000, many), np.sort(many))
+    assert big_clouds.big_cloud_sample(800, np.arange(800)) is None
 
 
 @pytest.mark.parametrize("layout", [NetLayout((5, 4), (3, 2)), NetLayout((5, 4), (2, 2), (True, False)),
@@ -40,7 +40,7 @@ def test_free_state_gives_back_the_weights_and_knots_of_a_surface(layout):
     weights = rng.uniform(0.5, 2.0, layout.n_free)
     inner = [np.sort(rng.uniform(0.1, 0.9, c)) for c in layout.inner_counts]
     surface = layout.surface(rng.normal(size=(layout.n_free, 3)), weights, *inner)
-    got = sampling.free_state(layout, surface)
+    got = big_clouds.free_state(layout, surface)
     np.testing.assert_array_equal(got.weights, weights)
     np.testing.assert_array_equal(got.inner_u, inner[0])
     np.testing.assert_array_equal(got.inner_v, inner[1])
@@ -57,7 +57,7 @@ def test_a_big_cloud_is_fitted_as_well_as_every_point_and_its_junk_counted(monke
     points[:25] = rng.uniform(points.min(0), points.max(0), (25, 3)) + [0, 0, 1.0]
     cfg = config()
     whole = fit_points(points, cfg)
-    monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
+    monkeypatch.setattr(big_clouds, "SUBSAMPLE_POINTS", 800)
     big = fit_points(points, cfg)
     assert big.info["subsample"]["points"] == 800 and "subsample" not in whole.info
     assert any("fitted on 800 of the 2500 points" in note for note in big.notes)
@@ -76,7 +76,7 @@ def test_an_exact_surface_is_finished_unchanged(monkeypatch):
     truth = layout.surface(np.stack([i, j, 0.2 * i * j * (1 - i)], -1).reshape(-1, 3), np.ones(16))
     uv = np.random.default_rng(4).random((3000, 2))
     points = truth.evaluate(uv[:, 0], uv[:, 1])
-    done = sampling.finished(layout, truth, points, 1e-6, True, False)
+    done = big_clouds.finished(layout, truth, points, 1e-6, True, False)
     assert done.surface is truth and done.rounds == 0 and (done.point_weights > 0).all()
 
 
@@ -90,7 +90,7 @@ def test_a_big_closed_cloud_is_fitted_the_same_twice_near_its_noise(monkeypatch)
     angle, height = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(0, 2, 3000)
     radius = 1 + 0.005 * rng.normal(size=3000)
     points = np.c_[radius * np.cos(angle), radius * np.sin(angle), height]
-    monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
+    monkeypatch.setattr(big_clouds, "SUBSAMPLE_POINTS", 800)
     cfg = config(topology="cylinder", net_size=[8, 5])
     first, second = fit_points(points, cfg), fit_points(points, cfg)
     np.testing.assert_array_equal(first.surface.control_points, second.surface.control_points)
@@ -111,7 +111,7 @@ def test_a_big_cloud_s_metrics_are_every_input_point_s_distance(monkeypatch):
     points = np.c_[x, y, 0.3 * np.sin(2 * x) * np.cos(1.5 * y) + 0.01 * rng.normal(size=2500)]
     points[:25] = rng.uniform(points.min(0), points.max(0), (25, 3)) + [0, 0, 1.0]
     points = np.concatenate([points, points[rng.choice(2500, 200)]])  # 200 duplicates
-    monkeypatch.setattr(sampling, "SUBSAMPLE_POINTS", 800)
+    monkeypatch.setattr(big_clouds, "SUBSAMPLE_POINTS", 800)
     big = fit_points(points, config())
     dist = closest_parameters(big.surface, points)[1]
     assert big.metrics["points"] == 2700 and big.metrics["outliers"] == 25

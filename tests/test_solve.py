@@ -1,4 +1,4 @@
-"""Regularised least squares (psonurbs.fitting.solve) against dense numpy computations:
+"""Regularised least squares (psonurbs.fitting.leastsq.regularised) against dense numpy computations:
 the stacked least-squares solution, an explicit leave-one-out refit, and the
 cell-block Gram / quadratic forms on an open and on a sphere layout."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.rows import Rows
 

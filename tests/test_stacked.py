@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from psonurbs.fitting.banded import BandOrder, StackedBandedCholesky
-from psonurbs.fitting.hybrid import KnotWeightSearch
-from psonurbs.fitting.solve import RegularisedLeastSquares
+from psonurbs.fitting.leastsq.banded import BandOrder, StackedBandedCholesky
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.stacked_rows import CellLayout, stacked_rows
 
@@ -22,7 +22,7 @@ LAYOUTS = {
 }
 
 
-def search_for(name: str, cross_validation: bool, n_points: int = 900, seed: int = 0) -> KnotWeightSearch:
+def search_for(name: str, cross_validation: bool, n_points: int = 900, seed: int = 0) -> KnotWeightSpace:
     """A well-posed swarm fitness (many points per cell): a smooth surface of (u, v), noisy."""
     layout = LAYOUTS[name]
     rng = np.random.default_rng(seed)
@@ -32,10 +32,10 @@ def search_for(name: str, cross_validation: bool, n_points: int = 900, seed: int
     points = np.column_stack([np.cos(a) * (2 + np.sin(b)), np.sin(a) * (2 + np.sin(b)), np.cos(b)])
     points += 0.01 * rng.normal(size=points.shape)
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6, layout.constraint_operator())
-    return KnotWeightSearch(layout, solver, points, uv, cross_validation, 0.2, (0.2, 5.0))
+    return KnotWeightSpace(layout, solver, points, uv, cross_validation, 0.2, (0.2, 5.0))
 
 
-def dense_rows(search: KnotWeightSearch, x: np.ndarray) -> np.ndarray:
+def dense_rows(search: KnotWeightSpace, x: np.ndarray) -> np.ndarray:
     return search.layout.rows(search.uv, *search.split(x).shape).toarray()
 
 
@@ -98,7 +98,7 @@ def test_a_particle_whose_solve_fails_scores_inf_and_the_others_are_kept(monkeyp
     np.testing.assert_allclose(np.delete(got, 2), np.delete(expected, 2), rtol=1e-15, atol=0)
 
 
-def weighted_reference(search: KnotWeightSearch, x: np.ndarray, w: np.ndarray, cross_validation: bool) -> float:
+def weighted_reference(search: KnotWeightSpace, x: np.ndarray, w: np.ndarray, cross_validation: bool) -> float:
     """The weighted solve by dense numpy: M = R^T W R + regulariser(tr R^T W R), leave-one-out
     residual e_i / (1 - w_i h_i), weighted RMSE."""
     r = dense_rows(search, x)

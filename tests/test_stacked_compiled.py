@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 from test_stacked import LAYOUTS, banded_spd, search_for
 
-from psonurbs.fitting.banded import band_cholesky, band_selected_inverse, band_solve
-from psonurbs.fitting.hybrid import KnotWeightSearch
-from psonurbs.fitting.solve import RegularisedLeastSquares
-from psonurbs.fitting.stacked_solve import StackedLeastSquares, cell_order
+from psonurbs.fitting.leastsq.banded import band_cholesky, band_selected_inverse, band_solve
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.leastsq.stacked import StackedLeastSquares
+from psonurbs.fitting.leastsq.stacked_compiled import cell_order
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.stacked_rows import CellLayout, knot_vectors, particle_cells, particle_rows, stacked_rows
 
@@ -26,7 +27,7 @@ NETS = {  # more degrees and sizes: m = 16, 12, 9, 6 columns a row
 }
 
 
-def net_search(name: str, cross_validation: bool, n_points: int = 900, seed: int = 0) -> KnotWeightSearch:
+def net_search(name: str, cross_validation: bool, n_points: int = 900, seed: int = 0) -> KnotWeightSpace:
     """A well-posed fitness (tens of points a cell: with a handful, leverages near 1 make the
     error ill-conditioned, and numpy's own two paths differ in the 6th digit)."""
     if name in LAYOUTS:
@@ -37,7 +38,7 @@ def net_search(name: str, cross_validation: bool, n_points: int = 900, seed: int
     points = np.column_stack([uv, np.sin(3 * uv[:, 0]) * np.cos(2 * uv[:, 1])])
     points += 0.01 * rng.normal(size=points.shape)
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6, layout.constraint_operator())
-    return KnotWeightSearch(layout, solver, points, uv, cross_validation, 0.2, (0.2, 5.0))
+    return KnotWeightSpace(layout, solver, points, uv, cross_validation, 0.2, (0.2, 5.0))
 
 
 def band_of(matrix: np.ndarray, width: int, extra: int = 0) -> np.ndarray:

@@ -7,14 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting.parametrise import (
-    STRAY_SHARE,
-    parametrise_cylinder,
-    parametrise_open,
-    parametrise_sphere,
-    parametrise_torus,
-)
-from psonurbs.fitting.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
+from psonurbs.fitting.parameters.closed import STRAY_SHARE, parametrise_cylinder, parametrise_sphere, parametrise_torus
+from psonurbs.fitting.parameters.plane import parametrise_open
+from psonurbs.fitting.parameters.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
 from psonurbs.geometry.net import NetLayout
 
 CLOSED = {
@@ -305,7 +300,7 @@ def test_pole_conditions_hold_for_a_tangent_plane_and_fail_for_a_cone_or_a_saddl
     (P[i, 1] = pole + a cos + b sin): any such ring, tilted or elliptic, meets the
     conditions; a pole lifted off its ring (a cone) or a saddle-shaped ring does not."""
     layout = NetLayout((6, 5), (3, 3), (True, False), poles=True)
-    rows = layout._pole_tangent_planes().toarray()
+    rows = layout.pole_tangent_planes().toarray()
     nu, nv = layout.size
     t = 2 * np.pi * np.arange(nu) / nu
     rng = np.random.default_rng(0)

@@ -1,24 +1,24 @@
-"""The fitter: organise -> parametrise -> swarm -> polish (-> refine), for one cloud.
+"""The fitter, for one cloud: prepare -> parameters -> search -> finish.
 
 ``strategy: hybrid`` (default): the swarm searches what is non-linear (the inner knots
 of both directions, the weights and the smoothing weight); inside its fitness the
 control points come from the regularised least-squares solve, and a particle is
 judged by its leave-one-out RMSE (each point against the solve that did not see it),
 so the swarm cannot win by tuning knots to noise. With ``robust``, gross outliers are
-judged locally before anything is parametrised (:mod:`psonurbs.fitting.outliers`) and
-every solve weighs the rest by a robust loss (:mod:`psonurbs.fitting.robust`). The best
-particle is kept only if it predicts the points the swarm never saw better than the
-classical start, by paired tests (:mod:`psonurbs.fitting.validation`); it is polished
-(parameter correction), the smoothing re-chosen by
-leave-one-out at the corrected parameters and polished again; then, with ``refine``,
-control points, weights and parameters are refined jointly (:mod:`psonurbs.fitting.refine`),
-anchored to the data's edges and kept if the gain pays for the freed weights
-(:func:`pays_for_weights`), or, where the swarm's weights were free already, if it fits
-the points as well and ends nearer the data (:func:`ends_nearer`). ``strategy: full`` is
-the paper's own search space (Eq. 10, :mod:`psonurbs.fitting.paper`): the swarm's best surface is the result.
-The result is checked without ground truth (:mod:`psonurbs.fitting.checks`: the surface
-or its net far outside the cloud's box, a fold, surface far from every point); a fit
-that fails a check carries warnings and says so in its notes.
+judged locally before anything is parametrised (:mod:`psonurbs.fitting.prepare.outliers`)
+and every solve weighs the rest by a robust loss
+(:mod:`psonurbs.fitting.prepare.robust_weights`). The best particle is kept only if it
+predicts the points the swarm never saw better than the classical start, by paired
+tests (:mod:`psonurbs.fitting.search.validation`); it is finished
+(:func:`psonurbs.fitting.finish.finishing.finish`: polished, the smoothing re-chosen by
+leave-one-out at the corrected parameters, polished again); then, with ``refine``,
+control points, weights and parameters are refined jointly and the result kept only if
+it earns it (:func:`psonurbs.fitting.finish.refine.refined_if_better`). ``strategy:
+full`` is the paper's own search space (Eq. 10, :mod:`psonurbs.fitting.search.paper_space`):
+the swarm's best surface is the result. The result is checked without ground truth
+(:mod:`psonurbs.fitting.finish.self_checks`: the surface or its net far outside the
+cloud's box, a fold, surface far from every point); a fit that fails a check carries
+warnings and says so in its notes.
 """
 from __future__ import annotations
 
@@ -26,25 +26,19 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from psonurbs.geometry.net import NetLayout, NetShape
-from psonurbs.geometry.nurbs import NurbsSurface
-from psonurbs.geometry.projection import closest_parameters
-from psonurbs.geometry.trim import Trim
-
-from .checks import check_fit
-from .footprint import footprint, footprint_notes
-from .hybrid import KnotWeightSearch, loo_smoothing
-from .organise import RESOLUTION, Cloud, organise, subsample
-from .outliers import OUTLIER_SIGMAS, local_outliers
-from .paper import FullSearch
-from .parametrise import Parametrisation
-from .polish import polish
-from .pso import SwarmResult, minimise
-from .refine import refine_jointly
-from .robust import (
+from psonurbs.fitting.finish.finishing import FitPoints, finish
+from psonurbs.fitting.finish.footprint import footprint, footprint_notes
+from psonurbs.fitting.finish.refine import refined_if_better
+from psonurbs.fitting.finish.self_checks import check_fit
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.parameters.parametrisation import Parametrisation
+from psonurbs.fitting.parameters.topology import choose_topology, layout_for, parametrise_for, topology_note
+from psonurbs.fitting.prepare.big_clouds import big_cloud_sample, every_foot_point, finished
+from psonurbs.fitting.prepare.organise import Cloud, organise, subsample
+from psonurbs.fitting.prepare.outliers import OUTLIER_SIGMAS, local_outliers
+from psonurbs.fitting.prepare.robust_weights import (
     CUTOFF_SIGMAS,
     classical_weights,
     kept_sample,
@@ -53,10 +47,14 @@ from .robust import (
     refreshed_weights,
     trusted_points,
 )
-from .sampling import big_cloud_sample, every_foot_point, finished
-from .solve import RegularisedLeastSquares, weighted_rms
-from .topology import choose_topology, layout_for, parametrise_for, topology_note
-from .validation import Z, held_out_choice, paired_test, reach, swarm_points_of
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
+from psonurbs.fitting.search.paper_space import PaperSpace
+from psonurbs.fitting.search.swarm import SwarmResult, minimise
+from psonurbs.fitting.search.validation import held_out_choice, swarm_points_of
+from psonurbs.geometry.net import NetLayout
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.trim import Trim
 
 CURVE_HEADER = ["iteration", "best_rmse", "mean_rmse"]
 
@@ -70,7 +68,7 @@ class FitResult:
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
-    warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.checks`)
+    warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.finish.self_checks`)
     trim: Trim | None = None  # the face's loops in the surface's parameter domain (None: untrimmed)
 
 
@@ -78,71 +76,13 @@ def rms(distances: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distances ** 2)))
 
 
-def pays_for_weights(before: np.ndarray, after: np.ndarray, n_weights: int,
-                     point_weights: np.ndarray | None = None) -> bool:
-    """Whether the refinement's drop in the residual sum of squares pays for the weights
-    it frees (Akaike): ``n ln(RSS_before / RSS_after) > 2 n_weights``.
-
-    On noisy data the extra freedom buys a percent or two of RMSE by fitting the noise,
-    at the price of the true shape; on a conic it takes the error to zero.
-    """
-    c = 1.0 if point_weights is None else point_weights
-    rss_before, rss_after = float(np.sum(c * before ** 2)), float(np.sum(c * after ** 2))
-    if rss_after <= 0.0:
-        return rss_before > 0.0
-    return len(before) * np.log(rss_before / rss_after) > 2.0 * n_weights
-
-
-def ends_nearer(polished: NurbsSurface, refined: NurbsSurface, points: np.ndarray, before: np.ndarray,
-               after: np.ndarray, point_weights: np.ndarray | None = None) -> bool:
-    """Whether the refined surface fits the points (N, 3) as well as the polished one and
-    ends nearer the data, by the validation's paired tests (:mod:`psonurbs.fitting.validation`):
-    the points' distances ``after`` (N,) not significantly larger than ``before`` (z < Z),
-    and the surface's samples significantly nearer the cloud (z < -Z).
-
-    For a swarm's particle, whose weights were searched, the refinement frees no weights,
-    so the Akaike price of :func:`pays_for_weights` does not apply; what the refined
-    surface can offer is its edges back on the data (:func:`anchored`). On step_bump the
-    polished surface of the swarm's knots runs up to 0.09 past the data's edge, the
-    anchored refined one does not, at an rmse 0.1% higher.
-    """
-    cloud = cKDTree(points)
-    return paired_test(before, after, point_weights).z < Z and \
-        paired_test(reach(polished, cloud), reach(refined, cloud)).z < -Z
-
-
-def anchored(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-             control: np.ndarray, shape: NetShape, polish_iterations: int,
-             point_weights: np.ndarray | None = None) -> NurbsSurface:
-    """The jointly refined surface with its edges back on the data.
-
-    The refinement may let the data retreat from a bounded direction's edges (see
-    ``NetLayout.bounded``): the surface then grows past the data's boundary at no cost
-    and overshoots the true one. If the refined surface is exact (the data on it to
-    within ``RESOLUTION``: a noise-free cloud of a shape the net represents, e.g. a conic
-    with the right weights) its only freedom left is where it ends, and it is
-    restricted exactly to the data's parameter extent. Otherwise it is polished again
-    with its weights, the data's edges re-aligned onto the domain's at every round. A
-    surface without edges (sphere, torus) is kept as refined.
-    """
-    surface = layout.surface(control, *shape)
-    if not any(layout.bounded):
-        return surface
-    if weighted_rms(closest_parameters(surface, points, uv)[1] ** 2, point_weights) <= RESOLUTION:
-        extent = [(float(uv[:, k].min()), float(uv[:, k].max())) if layout.bounded[k] else (0.0, 1.0)
-                  for k in (0, 1)]
-        return surface.restricted(*extent)
-    return polish(layout, solver, points, uv, shape, polish_iterations, realign=True,
-                  point_weights=point_weights).surface
-
-
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
                rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """Swarm over knots, weights and smoothing (least-squares control points), the best
     kept only if it predicts the points it never saw better than the classical fit
-    (:mod:`psonurbs.fitting.validation`), then the polish and the optional joint
+    (:mod:`psonurbs.fitting.search.validation`), then the polish and the optional joint
     refinement; with ``robust``, every solve weighted by the robust loss
-    (:mod:`psonurbs.fitting.robust`: of the classical fit first, of the polished one
+    (:mod:`psonurbs.fitting.prepare.robust_weights`: of the classical fit first, of the polished one
     after), the points of weight 0 left out."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
     w = classical_weights(layout, solver, cloud.points, par.uv, cloud.neighbourhoods) if config.robust \
@@ -151,7 +91,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
     c = w if config.robust else None  # the point weights of every solve
     swarms = swarm_points_of(seen, len(points))  # the sample, some held out for the validation in a small cloud
-    search = KnotWeightSearch(layout, solver, points[swarms], uv[swarms], config.cross_validation,
+    search = KnotWeightSpace(layout, solver, points[swarms], uv[swarms], config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[swarms])
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
@@ -159,39 +99,24 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     chosen, test = held_out_choice(search, swarm.best_position, layout, points, uv, swarms, config.polish_iterations,
                                    c)
     shape, smoothing = search.split(chosen)
-    solver = solver.with_smoothing(smoothing)
-    control, surface, uv, steps = polish(layout, solver, points, uv, shape, config.polish_iterations,
-                                         point_weights=c)
-    if config.robust:
-        w, uv = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
-        keep = w > 0
-        points, uv, seen, c = cloud.points[keep], uv[keep], kept_sample(sample, keep), w[keep]
-    # with parameters near the foot points, the leave-one-out choice of smoothing is sharp
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], uv[seen], shape,
-                                                 None if c is None else c[seen]))
-    control, surface, uv, more = polish(layout, solver, points, uv, shape, config.polish_iterations,
-                                        point_weights=c)
-    steps += more
-    if config.robust:  # the points left out on the first polished surface, judged on the better one
-        again, uv_all = refreshed_weights(surface, cloud.points, keep, uv, cloud.neighbourhoods)
-        if not np.array_equal(again > 0, keep):
-            w, keep = again, again > 0
-            points, uv, seen, c = cloud.points[keep], uv_all[keep], kept_sample(sample, keep), w[keep]
-            control, surface, uv, more = polish(layout, solver, points, uv, shape, config.polish_iterations,
-                                                point_weights=c)
-            steps += more
-    refine_steps, kept = 0, False
+
+    def reweigh(surface: NurbsSurface, fit: FitPoints, again: bool) -> FitPoints | None:
+        """The robust loss on a polished surface: the points left out judged on it."""
+        nonlocal w, keep
+        fresh, uv_all = refreshed_weights(surface, cloud.points, keep, fit.uv, cloud.neighbourhoods)
+        if again and np.array_equal(fresh > 0, keep):
+            return None
+        w, keep = fresh, fresh > 0
+        return FitPoints(cloud.points[keep], uv_all[keep], kept_sample(sample, keep), w[keep])
+
+    done = finish(layout, solver.with_smoothing(smoothing), FitPoints(points, uv, seen, c), shape,
+                  config.polish_iterations, reweigh if config.robust else None)
+    solver, steps = done.solver, done.rounds
+    surface, kept, refine_steps = done.surface, False, 0
     if config.refine:
-        searched = np.any(shape.weights != 1.0)  # the weights already free: a swarm's particle, not unit weights
-        control, shape, uv, refine_steps = refine_jointly(layout, solver, points, uv, control, shape,
-                                                          np.log(config.weight_bounds), config.refine_iterations,
-                                                          point_weights=c)
-        refined = anchored(layout, solver, points, uv, control, shape, config.polish_iterations, c)
-        before, after = closest_parameters(surface, points)[1], closest_parameters(refined, points)[1]
-        kept = pays_for_weights(before, after, layout.n_free, c) or \
-            (searched and ends_nearer(surface, refined, points, before, after, c))
-        if kept:
-            surface = refined
+        refinement = refined_if_better(layout, done, shape, np.log(config.weight_bounds), config.refine_iterations,
+                                       config.polish_iterations)
+        surface, kept, refine_steps = refinement.surface, refinement.accepted, refinement.rounds
     validation = {} if test is None else test.to_dict()
     info = {"strategy": "hybrid", "parametrisation": par.info, "smoothing": float(solver.smoothing),
             "swarm": {"points": int(len(swarms)), "cross_validation": bool(config.cross_validation), "evaluations": int(swarm.evaluations),
@@ -205,7 +130,7 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
 def run_full(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
              rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
     """The paper's search space over every point: the swarm's best surface, unpolished."""
-    search = FullSearch(layout, cloud.points, par.uv, config.min_knot_gap, tuple(config.weight_bounds))
+    search = PaperSpace(layout, cloud.points, par.uv, config.min_knot_gap, tuple(config.weight_bounds))
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)

@@ -35,10 +35,9 @@ from typing import Iterable
 import numpy as np
 
 from psonurbs.errors import ConfigError
+from psonurbs.formats.step import render_step, step_available
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
-
-from .step import render_step, step_available
 
 __all__ = [
     "FORMATS",

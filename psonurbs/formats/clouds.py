@@ -7,32 +7,27 @@ Reading refuses anything that is not a usable cloud with an
 device, a symlink to one), a PLY or PCD whose body holds fewer points than its header
 declares (or a count its size cannot hold), text beyond :data:`MAX_TEXT_BYTES`, and
 NaN or infinite coordinates. PLY and PCD are read by :mod:`.ply` and :mod:`.pcd`
-(x, y, z by name); open3d only for the layouts those leave to it, its messages
-captured and turned into the error.
+(x, y, z by name); open3d only for the layouts those leave to it
+(:mod:`.open3d_reader`), its messages captured and turned into the error.
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import re
-import sys
-import tempfile
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from psonurbs.errors import InputError, existing_file
+from psonurbs.formats.pcd import read_pcd
+from psonurbs.formats.ply import read_ply
+from psonurbs.formats.records import MAX_TEXT_BYTES, Cloud, check_point_count, check_text_size, is_number
+from psonurbs.formats.scans import SCAN_SUFFIXES, read_scan
 
-from .records import MAX_TEXT_BYTES, Cloud, check_point_count, check_text_size, is_number
-from .scans import SCAN_SUFFIXES, read_scan
-
-__all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "Cloud", "load_cloud", "read_cloud", "read_with_open3d"]
+__all__ = ["CLOUD_SUFFIXES", "MAX_TEXT_BYTES", "Cloud", "load_cloud", "read_cloud"]
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".pts") + SCAN_SUFFIXES
 _TEXT_SUFFIXES = (".xyz", ".txt", ".pts")
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 # ---- reading ---------------------------------------------------------------
@@ -76,12 +71,8 @@ def load_cloud(path: str | os.PathLike, max_points: int | None = None) -> Cloud:
             scan = read_scan(path, name)
             points, notes = scan.points, scan.notes
         elif suffix == ".ply":
-            from .ply import read_ply
-
             points = read_ply(path, name, head, size, max_points)
         elif suffix == ".pcd":
-            from .pcd import read_pcd
-
             points = read_pcd(path, name, head, size, max_points)
         else:
             check_text_size(name, size, "a text cloud")
@@ -103,66 +94,6 @@ def load_cloud(path: str | os.PathLike, max_points: int | None = None) -> Cloud:
         raise InputError(f"{name}: {n_bad} of {len(points)} points have non-finite coordinates "
                          f"({int(bad_nan.sum())} NaN, {int(bad_inf.sum())} infinite)")
     return Cloud(np.ascontiguousarray(points, dtype=np.float64), notes)
-
-
-@contextlib.contextmanager
-def _captured_output() -> Iterator[list[str]]:
-    """Capture what open3d prints while it reads.
-
-    open3d's logger writes through Python's ``sys.stdout`` and RPly (its PLY
-    parser) writes to file descriptor 2 from C; both are noise for our users but
-    useful in an error message. So both the Python streams and descriptors 1 and 2
-    are redirected; the captured text is appended to the yielded list at the end.
-    """
-    out: list[str] = []
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    saved = []
-    python_text = io.StringIO()
-    with tempfile.TemporaryFile() as sink:
-        try:
-            for fd in (1, 2):
-                try:
-                    saved.append((fd, os.dup(fd)))
-                    os.dup2(sink.fileno(), fd)
-                except OSError:
-                    pass
-            with contextlib.redirect_stdout(python_text), contextlib.redirect_stderr(python_text):
-                yield out
-        finally:
-            for fd, copy in saved:
-                os.dup2(copy, fd)
-                os.close(copy)
-            sink.seek(0)
-            text = python_text.getvalue() + sink.read().decode("utf-8", "replace")
-            out.append(_ANSI.sub("", text))
-
-
-def _open3d_detail(captured: str) -> str:
-    lines = [ln.strip() for ln in captured.splitlines() if ln.strip()]
-    lines = [re.sub(r"^\[Open3D (WARNING|ERROR|INFO|DEBUG)\]\s*", "", ln) for ln in lines]
-    return "; ".join(lines[:2])
-
-
-def read_with_open3d(path: Path, name: str, fmt: str, expected: int) -> np.ndarray:
-    """open3d's reading of a layout the own readers leave to it; refused unless it read
-    exactly the ``expected`` number of points and said nothing alarming."""
-    import open3d as o3d
-
-    with _captured_output() as captured, \
-            o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Warning):
-        cloud = o3d.io.read_point_cloud(str(path), format=fmt, remove_nan_points=False,
-                                        remove_infinite_points=False, print_progress=False)
-    points = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
-    detail = _open3d_detail(captured[0])
-    failed = "RPly" in detail or "failed" in detail.lower() or len(points) != expected
-    if failed or (len(points) == 0 and detail):
-        what = f"malformed or truncated {fmt.upper()} file"
-        if len(points) != expected:
-            what += f" (header declares {expected} points, {len(points)} read)"
-        raise InputError(f"{name}: {what}" + (f": {detail}" if detail else ""))
-    return points
 
 
 _SPLIT = re.compile(r"[,\s]+")

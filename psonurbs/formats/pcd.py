@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from psonurbs.errors import InputError
-
-from .records import (
+from psonurbs.formats.open3d_reader import read_with_open3d
+from psonurbs.formats.records import (
     ascii_table,
     check_holds,
     check_point_count,
@@ -103,8 +103,6 @@ def read_pcd(path: Path, name: str, head: bytes, size: int, max_points: int | No
         raise InputError(f"{name}: malformed or truncated PCD file: the compressed block holds "
                          f"{compressed:,} of {size - offset - 8:,} bytes and unpacks to {uncompressed:,}, "
                          f"the header declares {count:,} points of {record.itemsize} bytes")
-    from .clouds import read_with_open3d
-
     return read_with_open3d(path, name, "pcd", count)
 
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from psonurbs.errors import InputError
-
-from .records import (
+from psonurbs.formats.open3d_reader import read_with_open3d
+from psonurbs.formats.records import (
     ascii_table,
     check_holds,
     check_point_count,
@@ -148,6 +148,4 @@ def _ascii_vertices(path: Path, name: str, header: PlyHeader, before: list[Eleme
 
 
 def _by_open3d(path: Path, name: str, expected: int) -> np.ndarray:
-    from .clouds import read_with_open3d
-
     return read_with_open3d(path, name, "ply", expected)

@@ -7,7 +7,7 @@ them reading such a file is an :class:`~psonurbs.errors.InputError` that names t
   offset; the real coordinate is ``x = X * scale + offset`` (float64), which is what is
   returned. The file is read in chunks and only x, y, z are kept (24 bytes a point, not
   the whole point record). Survey offsets are large (UTM: 5e6 m); the fit centres and
-  scales the cloud itself (:mod:`psonurbs.fitting.organise`), so nothing is shifted here.
+  scales the cloud itself (:mod:`psonurbs.fitting.prepare.organise`), so nothing is shifted here.
 * **E57** holds one or more scans, each in its own frame with a pose (rotation
   quaternion, translation) into the file's frame. Every scan is read (Cartesian or
   spherical coordinates, scaled integers or floats, invalid points dropped), placed by
@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from psonurbs.errors import InputError
-
-from .records import Cloud
+from psonurbs.formats.records import Cloud
 
 __all__ = ["SCAN_SUFFIXES", "read_scan"]
 

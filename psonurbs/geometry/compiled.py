@@ -1,4 +1,5 @@
-"""Optional compiled kernels: numba (the ``fast`` extra), with numpy as the reference.
+"""Work in parts: chunks of bounded memory, threads, and optional compiled kernels (numba,
+the ``fast`` extra) with numpy as the reference.
 
 A hot loop that numpy can only express as many passes over padded arrays (the swarm's
 fitness, foot-point searches) may have a compiled twin. Each twin is written next to its
@@ -31,6 +32,17 @@ except ImportError:  # the numpy reference path
     numba = None
 
 ENABLED = numba is not None
+
+
+def chunks(n: int, size: int) -> Iterator[slice]:
+    """Consecutive slices of at most ``size`` items covering ``range(n)``.
+
+    A computation independent per point (a surface's value, a foot point) gives the same
+    numbers on a chunk as on all points at once, so chunking bounds the memory of its
+    intermediate arrays (a few hundred bytes per point) without changing a result; the
+    chunks are what :func:`in_order` and :func:`each` share out among threads."""
+    for start in range(0, n, size):
+        yield slice(start, min(start + size, n))
 
 
 def kernel(function=None, *, inline: bool = False):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compiled import kernel
+from psonurbs.geometry.compiled import kernel
 
 
 @kernel(inline=True)

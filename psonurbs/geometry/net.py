@@ -16,9 +16,9 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .basis import design_matrix, inner_knot_count, make_knots, tensor_basis
-from .nurbs import NurbsSurface
-from .rows import Rows
+from psonurbs.geometry.basis import design_matrix, inner_knot_count, make_knots, tensor_basis
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.rows import Rows
 
 
 class NetShape(NamedTuple):
@@ -100,10 +100,10 @@ class NetLayout:
 
     def constraint_operator(self) -> sp.csr_array | None:
         """Linear conditions ``C P = 0`` on the free points, or None: at a sphere's poles,
-        a tangent plane (:meth:`_pole_tangent_planes`)."""
+        a tangent plane (:meth:`pole_tangent_planes`)."""
         if not self.poles:
             return None
-        return sp.csr_array(self._pole_tangent_planes() @ self._distinct_to_free())
+        return sp.csr_array(self.pole_tangent_planes() @ self._distinct_to_free())
 
     def _distinct_to_free(self) -> sp.csr_array:
         """0/1 matrix taking the free points to the distinct net (nu * nv rows)."""
@@ -111,7 +111,7 @@ class NetLayout:
         distinct_to_free = self.free_index[self._first_full_of_distinct()]
         return sp.csr_array((np.ones(nu * nv), (np.arange(nu * nv), distinct_to_free)), shape=(nu * nv, self.n_free))
 
-    def _pole_tangent_planes(self) -> sp.csr_array:
+    def pole_tangent_planes(self) -> sp.csr_array:
         """Rows on the distinct net that vanish exactly when each pole's first ring is the
         pole plus an affine image of a circle, ``P[i, 1] = pole + a cos(2 pi i / nu) + b sin(2 pi i / nu)``.
 

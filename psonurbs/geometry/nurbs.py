@@ -16,8 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .basis import clamped_knots, design_matrix, tensor_basis
-from .chunks import chunks
+from psonurbs.geometry.basis import clamped_knots, design_matrix, tensor_basis
+
+from .compiled import chunks
 
 EVALUATION_CHUNK = 1 << 15  # points evaluated together: some 20 MB of basis and derivative arrays
 

@@ -20,9 +20,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import compiled, foot_kernel
-from .chunks import chunks
-from .nurbs import NurbsSurface
+from psonurbs.geometry import compiled, foot_kernel
+from psonurbs.geometry.nurbs import NurbsSurface
+
+from .compiled import chunks
 
 LINE_SEARCH_HALVINGS = 8
 PARAMETER_TOLERANCE = 1e-10  # of the unit domain: far below any distance a fit can resolve

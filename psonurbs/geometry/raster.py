@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import compiled
-from .compiled import kernel
+from psonurbs.geometry import compiled
+from psonurbs.geometry.compiled import kernel
 
 COMPILED = compiled.ENABLED
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .chunks import chunks
+from .compiled import chunks
 
 ROW_CHUNK = 1 << 17  # rows summed together: work arrays of some 20 MB (m = 16) whatever N
 BLOCK_HEIGHT = 64  # at most this many rows of a cell in one dense block

@@ -25,8 +25,8 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from .compiled import kernel
-from .net import NetLayout
+from psonurbs.geometry.compiled import kernel
+from psonurbs.geometry.net import NetLayout
 
 
 def knot_vectors(n: int, degree: int, closed: bool, inner: np.ndarray) -> np.ndarray:

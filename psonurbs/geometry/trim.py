@@ -20,8 +20,8 @@ from scipy.interpolate import BSpline
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import Delaunay, cKDTree
 
-from .basis import clamped_knots
-from .nurbs import NurbsSurface
+from psonurbs.geometry.basis import clamped_knots
+from psonurbs.geometry.nurbs import NurbsSurface
 
 __all__ = ["TrimLoop", "Trim", "fit_closed_curve", "polygon_loop", "inside", "crossing", "signed_area",
            "trimmed_mesh", "distances_to_boundary", "distances_to_face"]

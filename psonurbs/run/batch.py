@@ -30,13 +30,12 @@ from numpy.linalg import LinAlgError
 
 from psonurbs.errors import PsonurbsError
 from psonurbs.formats.clouds import Cloud, load_cloud
-
-from .cluster import Scheduler
-from .gate import Gate
-from .heap import keep_freed_memory
-from .inputs import Job
-from .summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, SUSPECT, Row, printable, worker_lost_row
-from .workers import pool_run
+from psonurbs.run.cluster import Scheduler
+from psonurbs.run.gate import Gate
+from psonurbs.run.heap import keep_freed_memory
+from psonurbs.run.inputs import Job
+from psonurbs.run.summary import BAD_INPUT, GATE, INTERNAL, SUMMARY_NAMES, SUSPECT, Row, printable, worker_lost_row
+from psonurbs.run.workers import pool_run
 
 __all__ = ["FitOutcome", "fit_cloud", "fit_job", "preflight", "read_job", "run_batch"]
 
@@ -87,7 +86,7 @@ def read_job(job: Job) -> Cloud | FitOutcome:
     (its row): unreadable, coordinates not representable, or more than the config's
     memory budget allows (:mod:`psonurbs.fitting.budget`)."""
     from psonurbs.fitting.budget import check_budget, max_points
-    from psonurbs.fitting.organise import check_coordinates
+    from psonurbs.fitting.prepare.organise import check_coordinates
 
     start = time.perf_counter()
     try:
@@ -314,7 +313,7 @@ def _run_on_cluster(jobs: Sequence[Job], todo: Sequence[int], scheduler: Schedul
                     fit: Callable | None, done: Callable[[int, Row], None],
                     finish: Callable[[FitOutcome], Row]) -> None:
     """Read each cloud here as the cluster has room, fit it there, write it here."""
-    from .cluster import cluster_run, stop_if_cancelled
+    from psonurbs.run.cluster import cluster_run, stop_if_cancelled
 
     read_seconds: dict[int, float] = {}
 

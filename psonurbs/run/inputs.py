@@ -8,8 +8,7 @@ from pathlib import Path
 from typing import Iterable
 
 from psonurbs.formats.clouds import CLOUD_SUFFIXES
-
-from .summary import BAD_INPUT, Row
+from psonurbs.run.summary import BAD_INPUT, Row
 
 __all__ = ["Job", "expand_inputs", "jobs_from_inputs"]
 

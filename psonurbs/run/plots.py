@@ -166,7 +166,7 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path, trim=
 
 
 def plot_distance(surface, points: np.ndarray, title: str, path: Path, trim=None) -> Path:
-    from .scoring import point_distances
+    from psonurbs.run.scoring import point_distances
 
     distances = point_distances(surface, points, trim)
     fig = _figure("distance")
@@ -261,8 +261,7 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
     unusable JSON or cloud, :class:`ConfigError` without matplotlib.
     """
     from psonurbs.formats.clouds import read_cloud
-
-    from .scoring import load_surface, surface_trim
+    from psonurbs.run.scoring import load_surface, surface_trim
 
     _matplotlib()
     json_path = Path(json_path)

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from .gate import Gate
+from psonurbs.run.gate import Gate
 
 __all__ = [
     "Row", "exit_code", "write_summary", "render_summary_csv", "render_summary_json",

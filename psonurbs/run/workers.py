@@ -19,7 +19,7 @@ import traceback
 from collections import deque
 from typing import Callable
 
-from .heap import keep_freed_memory
+from psonurbs.run.heap import keep_freed_memory
 
 __all__ = ["pool_run", "describe_exit"]
 

@@ -52,6 +52,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
+from psonurbs.fitting.prepare.robust_weights import biweights
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.raster import rasterised
@@ -65,8 +66,6 @@ from psonurbs.geometry.trim import (
     polygon_loop,
     signed_area,
 )
-
-from .robust import biweights
 
 NEIGHBOURS = 16
 ALPHA = 2.5
@@ -244,7 +243,7 @@ def median_spacing(x: np.ndarray) -> float:
 
 def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Which points (N,) say where the data lie on the surface: all but gross outliers,
-    of robust weight 0 (:func:`psonurbs.fitting.robust.biweights`) *and* farther from the
+    of robust weight 0 (:func:`psonurbs.fitting.prepare.robust_weights.biweights`) *and* farther from the
     surface than the points' median spacing (x (N, 2): their parameters at the mean speeds).
 
     The robust scale of a near-exact fit (noise-free points of a shape the net almost

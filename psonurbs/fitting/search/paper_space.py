@@ -15,10 +15,10 @@ import numpy as np
 from psonurbs.geometry.basis import random_inner_knots
 from psonurbs.geometry.net import NetLayout, NetShape
 
-from .pso import Polytope
+from .swarm import Polytope
 
 
-class FullParticle(NamedTuple):
+class PaperParticle(NamedTuple):
     """What a particle of the paper's search space stands for."""
 
     control: np.ndarray  # (n_free, 3)
@@ -26,7 +26,7 @@ class FullParticle(NamedTuple):
     uv: np.ndarray  # (N, 2) every point's parameters
 
 
-class FullSearch:
+class PaperSpace:
     def __init__(self, layout: NetLayout, points: np.ndarray, uv: np.ndarray,
                  min_gap: float, weight_bounds: tuple[float, float]):
         self.layout, self.points, self.uv0 = layout, points, uv
@@ -46,9 +46,9 @@ class FullSearch:
     def dimension(self) -> int:
         return sum(self.sizes)
 
-    def split(self, x: np.ndarray) -> FullParticle:
+    def split(self, x: np.ndarray) -> PaperParticle:
         parts = np.split(x, np.cumsum(self.sizes)[:-1])
-        return FullParticle(parts[0].reshape(-1, 3), NetShape(np.exp(parts[1]), parts[2], parts[3]),
+        return PaperParticle(parts[0].reshape(-1, 3), NetShape(np.exp(parts[1]), parts[2], parts[3]),
                             parts[4].reshape(-1, 2))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:

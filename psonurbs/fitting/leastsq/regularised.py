@@ -25,6 +25,15 @@ weights (None) every number is the unweighted one.
 
 R comes as :class:`psonurbs.geometry.rows.Rows` (m non-zeros per row, grouped by
 knot-span cell), so ``R^T R`` and the leverages h_ii are sums of small dense blocks.
+
+This module is the computation's one definition, for one net; the swarm evaluates it
+for many particles at once by its two twins, the numpy
+:class:`psonurbs.fitting.leastsq.stacked.StackedLeastSquares` and the compiled
+:mod:`psonurbs.fitting.leastsq.stacked_compiled`, which take the constants below
+(:data:`CONSTRAINT_WEIGHT`, :data:`RIDGE`, :data:`LEVERAGE_FLOOR`) from here and scale
+the regulariser per particle as ``(lam / tr(L^T L)) t`` where this solver forms
+``lam t / tr(L^T L)``: the same numbers to rounding, each path's operations fixed so
+that a fit gives the same bits every time.
 """
 from __future__ import annotations
 
@@ -37,6 +46,8 @@ import scipy.sparse as sp
 from psonurbs.geometry.rows import Rows
 
 CONSTRAINT_WEIGHT = 1e4  # a condition C P = 0 weighs this much more than the data: imposed
+RIDGE = 1e-12  # added to M's diagonal, relative to its mean: keeps M positive definite
+LEVERAGE_FLOOR = 1e-12  # 1 - h_ii at least this: a point that alone decides its fit keeps a finite error
 
 
 class RegularisedLeastSquares:
@@ -73,7 +84,7 @@ class RegularisedLeastSquares:
         """``M = R^T R + lam L^T L + kappa C^T C`` plus a tiny ridge that keeps M positive definite."""
         trace = float(np.trace(gram))
         system = gram + self.regulariser(trace)
-        system[np.diag_indices_from(system)] += 1e-12 * trace / len(gram)
+        system[np.diag_indices_from(system)] += RIDGE * trace / len(gram)
         return system
 
     def solve(self, rows: Rows, data: np.ndarray, point_weights: np.ndarray | None = None) -> np.ndarray:
@@ -92,7 +103,7 @@ class RegularisedLeastSquares:
         control = la.cho_solve(factor, scaled.project(scaled_data), check_finite=False)
         inverse = la.cho_solve(factor, np.eye(rows.n_columns), check_finite=False)
         leverage = blocks.quadratic_forms(inverse)  # w_i h_ii
-        return control, (rows @ control - data) / np.maximum(1.0 - leverage, 1e-12)[:, None]
+        return control, (rows @ control - data) / np.maximum(1.0 - leverage, LEVERAGE_FLOOR)[:, None]
 
     def leave_one_out_rmse(self, rows: Rows, data: np.ndarray, point_weights: np.ndarray | None = None) -> float:
         """RMSE of each point's residual under the fit that did not see it (exact LOO),

@@ -11,8 +11,8 @@ cylinder needs rims, not ends that close to a point) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
 leave-one-out error. Every candidate's score or reason for rejection is reported.
 The open candidate's first parameters follow ``parametrisation`` (plane or intrinsic,
-:mod:`psonurbs.fitting.open_parameters`), intrinsic ones corrected from coarse to fine
-(:mod:`psonurbs.fitting.coarse_to_fine`).
+:mod:`psonurbs.fitting.parameters.open_patch`), intrinsic ones corrected from coarse to fine
+(:mod:`psonurbs.fitting.parameters.coarse_to_fine`).
 """
 from __future__ import annotations
 
@@ -20,14 +20,16 @@ from typing import Callable
 
 import numpy as np
 
+from psonurbs.fitting.finish.self_checks import check_fit
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
 
-from .checks import check_fit
+from .closed import parametrise_cylinder, parametrise_sphere, parametrise_torus
 from .coarse_to_fine import coarse_to_fine
-from .hybrid import KnotWeightSearch
-from .open_parameters import parametrise_open_patch
-from .parametrise import Parametrisation, parametrise
-from .solve import RegularisedLeastSquares
+from .open_patch import parametrise_open_patch
+from .parametrisation import Parametrisation
+from .plane import parametrise_open
 
 LAYOUTS = {  # closed (u, v), poles
     "open": ((False, False), False),
@@ -39,6 +41,15 @@ MAX_GAP = 0.25  # widest empty arc (in turns) that a closed direction may have
 POLE_REACH = 0.15  # a sphere's data must come this close (in v) to each pole
 RIM_RATIO = 0.3  # a cylinder's ends must keep this share of its middle radius
 SUSPECT = "suspect: "  # a candidate rejected by the self-checks: its reason in ``topology_scores``
+
+PARAMETRISATIONS = {"open": parametrise_open, "cylinder": parametrise_cylinder,
+                    "sphere": parametrise_sphere, "torus": parametrise_torus}
+
+
+def parametrise(points: np.ndarray, topology: str) -> Parametrisation:
+    """First (u, v) in [0, 1]^2 for every point, for the given topology."""
+    return PARAMETRISATIONS[topology](points)
+
 
 
 def layout_for(topology: str, net_size, degrees) -> NetLayout:
@@ -73,7 +84,7 @@ def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str 
 def classical_error(layout: NetLayout, par: Parametrisation, points: np.ndarray, config) -> float:
     """Leave-one-out RMSE of the classical fit (uniform knots, unit weights)."""
     solver = RegularisedLeastSquares(layout.smoothness_operator(), config.smoothing, layout.constraint_operator())
-    search = KnotWeightSearch(layout, solver, points, par.uv, config.cross_validation,
+    search = KnotWeightSpace(layout, solver, points, par.uv, config.cross_validation,
                               config.min_knot_gap, tuple(config.weight_bounds))
     return search.error(search.classical())
 
@@ -112,7 +123,7 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
                     log: Callable[[str], None] | None = None) -> tuple[str, Parametrisation, dict]:
     """The topology that fits the cloud best, its parametrisation and every candidate's score.
 
-    A candidate whose classical surface fails a self-check (:mod:`psonurbs.fitting.checks`)
+    A candidate whose classical surface fails a self-check (:mod:`psonurbs.fitting.finish.self_checks`)
     is rejected: an open patch laid over a tube caps its end and folds there, a torus
     forced onto a curled sheet flaps far outside it, both while passing near every
     point. If every candidate fails, the least error is kept all the same.

@@ -11,7 +11,7 @@ weight by the robust loss on that fit (judged with the local test's neighbourhoo
 whole cloud; the subsample's own fit weighs its points by the plain scale), and up to
 ``FINAL_ROUNDS`` rounds of parameter correction on the points kept, with the subsample's
 knots, weights and smoothing. The result is the fit
-of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted as before.
+of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted on all their points directly.
 """
 from __future__ import annotations
 
@@ -19,15 +19,15 @@ from typing import NamedTuple
 
 import numpy as np
 
+from psonurbs.fitting.finish.polish import polish
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .organise import RESOLUTION
 from .outliers import Neighbourhoods
-from .polish import polish
-from .robust import biweights
-from .solve import RegularisedLeastSquares
+from .robust_weights import biweights
 
 SUBSAMPLE_POINTS = 20_000  # a bigger cloud is fitted on this many of its points, then finished on all
 FINAL_ROUNDS = 3  # rounds of parameter correction on every point after that (each a solve and foot points)
@@ -69,7 +69,7 @@ def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoot
     """The subsample's surface finished on every point.
 
     Every point's foot point on it (global search), with ``robust`` its weight by the
-    robust loss on it (:func:`psonurbs.fitting.robust.biweights`, with the whole cloud's
+    robust loss on it (:func:`psonurbs.fitting.prepare.robust_weights.biweights`, with the whole cloud's
     ``neighbourhoods``; weight 0 is left out), then up to ``FINAL_ROUNDS`` rounds of the
     polish on the points kept, so weighted, at the surface's knots and weights, from those
     foot points as they are (``realign``: the data's edges re-aligned every round, as for

@@ -1,14 +1,15 @@
-"""The hybrid encoding of the swarm: knots and weights in the particle, control points solved.
+"""The swarm's search space (``strategy: hybrid``): knots, weights and smoothing in the
+particle, control points solved.
 
 A particle is (inner knots along u, inner knots along v, log-weights of the free
-control points). For given knots and weights the surface is linear in its control
+control points, log10 of the smoothing). For given knots and weights the surface is linear in its control
 points, so they are never searched: the fitness solves for them by regularised least
 squares and returns the leave-one-out RMSE (or the plain RMSE), weighted by the robust
-loss's point weights when there are any (:mod:`psonurbs.fitting.robust`).
+loss's point weights when there are any (:mod:`psonurbs.fitting.prepare.robust_weights`).
 
 The swarm's fitness evaluates all particles of an iteration together
-(:mod:`psonurbs.fitting.stacked_solve`: by numpy, or its compiled twin with numba); :meth:`KnotWeightSearch.error` is the same
-number for one particle through the single solver (scipy design matrices, dense
+(:mod:`psonurbs.fitting.leastsq.stacked`: by numpy, or its compiled twin with numba);
+:meth:`KnotWeightSpace.error` is the same number for one particle through the single solver (scipy design matrices, dense
 Cholesky), used by the topology choice and the validation.
 """
 from __future__ import annotations
@@ -18,14 +19,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares, weighted_rms
+from psonurbs.fitting.leastsq.stacked import StackedLeastSquares
 from psonurbs.geometry import compiled
 from psonurbs.geometry.basis import random_inner_knots, uniform_inner_knots
 from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.stacked_rows import CellLayout, StackedRows, stacked_rows
 
-from .pso import Polytope
-from .solve import RegularisedLeastSquares, weighted_rms
-from .stacked_solve import StackedLeastSquares
+from .swarm import Polytope
 
 SMOOTHING_RANGE = (-10.0, -1.0)  # log10 of the relative smoothing weight the swarm may choose
 GROUP_BYTES = 2 ** 21  # particles are evaluated in groups whose rows take about this much (cache)
@@ -38,9 +39,9 @@ class Decoded(NamedTuple):
     smoothing: float
 
 
-class KnotWeightSearch:
-    """The hybrid encoding: a particle is (inner knots u, inner knots v, log-weights,
-    log10 smoothing).
+class KnotWeightSpace:
+    """The knot and weight search space: a particle is (inner knots u, inner knots v,
+    log-weights, log10 smoothing).
 
     Control points are never in the particle: for given knots, weights and smoothing
     they are the least-squares solution, which the fitness computes. Judged by the
@@ -155,21 +156,3 @@ class KnotWeightSearch:
             return weighted_rms(np.sum((rows @ control - self.points) ** 2, axis=1), self.point_weights)
         except np.linalg.LinAlgError:
             return np.inf
-
-
-def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-                  shape: NetShape, point_weights: np.ndarray | None = None) -> float:
-    """The smoothing weight with the least leave-one-out error at these parameters.
-
-    After the polish the parameters are close to foot points, so the choice is sharp:
-    vanishing where the net represents the shape, larger where the data are noisy.
-    """
-    rows = layout.rows(uv, *shape)
-    grid = 10.0 ** np.arange(SMOOTHING_RANGE[0], SMOOTHING_RANGE[1] + 0.25, 0.5)
-    errors = []
-    for s in grid:
-        try:
-            errors.append(solver.with_smoothing(s).leave_one_out_rmse(rows, points, point_weights))
-        except np.linalg.LinAlgError:
-            errors.append(np.inf)
-    return float(grid[int(np.argmin(errors))])

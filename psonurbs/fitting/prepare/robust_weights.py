@@ -1,6 +1,6 @@
 """The robust loss: iteratively reweighted least squares with Tukey's biweight.
 
-The local test (:mod:`psonurbs.fitting.outliers`) removes the junk that lies far from the
+The local test (:mod:`psonurbs.fitting.prepare.outliers`) removes the junk that lies far from the
 surface its neighbours describe. What it cannot see (a flat piece of another object,
 junk a few sigmas off the surface) must not pull the fit either, so every solve weighs
 point i by
@@ -17,7 +17,7 @@ counts them with the local outliers); partial weights only make a point count le
 Where the fit itself is wrong (a bump the net cannot resolve, a fold of the
 parametrisation), a whole neighbourhood lies far from it: those points are not junk,
 and leaving them out would hide the error. So a point on the main piece of surface
-(:class:`psonurbs.fitting.outliers.Neighbourhoods`) is judged against the larger of
+(:class:`psonurbs.fitting.prepare.outliers.Neighbourhoods`) is judged against the larger of
 sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_i)``:
 it is left out only when it is far from the fit *and* from where its neighbours are.
 Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
@@ -39,13 +39,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .organise import RESOLUTION
 from .outliers import Neighbourhoods
-from .solve import RegularisedLeastSquares
+from .tukey import biweight
 
 CUTOFF_SIGMAS = 10.0
 VOUCHED_FLOOR = 0.01  # the least weight of a point its neighbours vouch for
@@ -66,8 +67,7 @@ def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = Non
     if neighbourhoods is not None:
         scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
     ratio = distances / (CUTOFF_SIGMAS * scale)
-    u = np.minimum(ratio, 1.0)
-    weights = (1.0 - u * u) ** 2
+    weights = biweight(ratio)
     if neighbourhoods is not None:
         floor = VOUCHED_FLOOR / np.maximum(ratio, 1.0)  # its pull w d never above the floor's at the cut-off
         weights = np.where(neighbourhoods.spared, np.maximum(weights, floor), weights)

@@ -8,12 +8,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from psonurbs.fitting.leastsq.regularised import weighted_rms
+from psonurbs.fitting.leastsq.stacked import least_squares_at
 from psonurbs.geometry.net import NetShape
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 from .footprint import ALPHA
-from .solve import weighted_rms
-from .stacked_solve import least_squares_at
 
 
 def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = 8) -> np.ndarray:
@@ -49,15 +49,14 @@ def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
     again; the few points past a straight edge's line are put on it.
 
     The sampling scatter of an edge is ``ALPHA`` spacings (the alpha shape's scale of a
-    sampling gap, :mod:`psonurbs.fitting.footprint`), the spacing s = sqrt(A / N) of N
+    sampling gap, :mod:`psonurbs.fitting.finish.footprint`), the spacing s = sqrt(A / N) of N
     points over the area A of their bounding box. Past an edge that is not straight
     the points reach farther, and putting them on a line through its extremes would
     squeeze a whole cap of the data onto the domain's edge: a bent parametrisation, in
     which even a surface the net represents exactly in its plain parameters
     (plate_holes' quadric over an ellipse) is no longer represented. Such an edge is
     the data's extreme instead (the map stays affine), and the trim cuts the surface
-    back to the data. With ``support`` False every edge is a line, as before this
-    rule: the re-alignment at every round of parameter correction (``realign``) keeps
+    back to the data. With ``support`` False every edge is a line: the re-alignment at every round of parameter correction (``realign``) keeps
     putting the foot points that run past an edge back on it.
     """
     out = uv.copy()
@@ -91,8 +90,7 @@ class AndersonMixing:
     differences of the iterates): beta 1 is the plain mix above, the polish's. Beta 2
     converges faster where the polish runs to its cap on real scans, but can throw a
     polished surface far from the truth (the steep cliff of tests/test_fit.py with knots
-    leaving wide end spans; README, Big clouds); ``benchmarks/polish_rounds.py``
-    measures the error against rounds for several.
+    leaving wide end spans).
     """
 
     def __init__(self, closed: tuple[bool, bool], depth: int = 5, relaxation: float = 1.0):
@@ -138,7 +136,7 @@ def polish(layout, solver, points: np.ndarray, uv: np.ndarray, shape: NetShape, 
     The data's extent is first aligned onto the domain (``align``), with ``realign`` at
     every round. The pipeline aligns before each of its polishes, foot points of the
     previous one included (undoing that one's drift of the edges; without it bunny_front's
-    fit is the same to 0.5%, README); the few finishing rounds on a big cloud's every
+    fit is the same to 0.5%); the few finishing rounds on a big cloud's every
     point do not.
     Returns the best control points (free), their surface, its foot-point parameters
     and the rounds taken.

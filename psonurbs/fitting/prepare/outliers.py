@@ -46,7 +46,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from psonurbs.geometry import compiled
-from psonurbs.geometry.chunks import chunks
+from psonurbs.geometry.compiled import chunks
+
+from . import tukey
 
 NEIGHBOURS = 24  # k: a quadric (6 coefficients) with room for a few junk neighbours
 OUTLIER_SIGMAS = 20.0  # gross: beyond heavy-tailed scanner noise (see the module docstring)
@@ -74,13 +76,13 @@ class NeighbourhoodFits:
     @staticmethod
     def placed(rows: np.ndarray, fits: "NeighbourhoodFits") -> "NeighbourhoodFits":
         """The fits of the points ``rows`` (a permutation of all N), in the points' order."""
-        return fits._scattered(rows, fits, np.empty_like)
+        return fits.scattered(rows, fits, np.empty_like)
 
     def replaced(self, rows: np.ndarray, other: "NeighbourhoodFits") -> "NeighbourhoodFits":
         """These fits with those of ``rows`` taken from ``other`` (fitted for those rows only)."""
-        return self._scattered(rows, other, np.copy)
+        return self.scattered(rows, other, np.copy)
 
-    def _scattered(self, rows: np.ndarray, other: "NeighbourhoodFits", start) -> "NeighbourhoodFits":
+    def scattered(self, rows: np.ndarray, other: "NeighbourhoodFits", start) -> "NeighbourhoodFits":
         """Every field ``start``-ed from this one's (a copy, or an empty array like it), with
         ``other``'s values at ``rows``."""
         out = {}
@@ -220,9 +222,8 @@ def shared_neighbours(index: np.ndarray, order: np.ndarray | None = None) -> np.
 
 
 def biweight(residual: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Tukey's biweight ``(1 - (r / (TUKEY scale))^2)^2`` inside the cut-off, 0 beyond."""
-    u = np.minimum(np.abs(residual) / (TUKEY * np.maximum(scale, 1e-300)), 1.0)
-    return (1.0 - u * u) ** 2
+    """Tukey's biweight (:func:`psonurbs.fitting.prepare.tukey.biweight`) cut off at ``TUKEY scale``."""
+    return tukey.biweight(np.abs(residual) / (TUKEY * np.maximum(scale, 1e-300)))
 
 
 def spatial_order(points: np.ndarray) -> np.ndarray:

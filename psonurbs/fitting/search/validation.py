@@ -25,9 +25,9 @@ fit: started at the smoothing the leave-one-out error picks at the first paramet
 a steep cliff those cannot represent the step, so the pick is heavy), a classical
 candidate stays over-smoothed through its polish, and a swarm whose knots merely
 escape that handicap looks better than the classical fit the user would get. On a noisy
-cliff (benchmarks/feature_clouds.py) the swarm's candidate had 0.47 x the classical
-candidate's truth error while the fits the pipeline ends with are 1.38 x; finished
-this way, the candidates are 1.23 x.
+cliff a swarm's candidate at 0.47 x the classical candidate's truth error, judged
+unfinished, ends at 1.38 x once both are finished as the pipeline finishes them;
+finished this way, the candidates compare at 1.23 x.
 
 Point-to-surface distances see only where the points are. A polish of uniform knots on
 a steep step slides the points off a fold the surface makes, and the fold is invisible
@@ -46,13 +46,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from psonurbs.geometry.net import NetLayout, NetShape
-from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.fitting.finish.finishing import FitPoints, finish, loo_smoothing
+from psonurbs.fitting.leastsq.regularised import weighted_rms
+from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.projection import closest_parameters
 
-from .hybrid import KnotWeightSearch, loo_smoothing
-from .polish import polish
-from .solve import RegularisedLeastSquares, weighted_rms
+from .knot_weight_space import KnotWeightSpace
 
 Z = 2.0  # standard errors: a one-sided paired z-test at about 2%
 HELD_OUT = 200  # points a cloud of at least 4 x as many keeps from the swarm, for its validation
@@ -132,20 +131,7 @@ class Validation:
                 "kept": self.kept}
 
 
-def finished_candidate(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
-             shape: NetShape, n_seen: int, rounds: int, point_weights: np.ndarray | None = None) -> NurbsSurface:
-    """A candidate's surface finished as the pipeline finishes the one it keeps: polished
-    at its own smoothing (``solver``'s; ``rounds`` rounds at most), the smoothing
-    re-chosen by leave-one-out on the first ``n_seen`` points (the swarm's) at the
-    corrected parameters, polished again."""
-    seen = slice(0, n_seen)
-    corrected = polish(layout, solver, points, uv, shape, rounds, point_weights=point_weights).uv
-    solver = solver.with_smoothing(loo_smoothing(layout, solver, points[seen], corrected[seen], shape,
-                                                 None if point_weights is None else point_weights[seen]))
-    return polish(layout, solver, points, corrected, shape, rounds, point_weights=point_weights).surface
-
-
-def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayout, points: np.ndarray,
+def held_out_choice(search: KnotWeightSpace, best: np.ndarray, layout: NetLayout, points: np.ndarray,
                     uv: np.ndarray, seen: np.ndarray, polish_iterations: int,
                     point_weights: np.ndarray | None = None) -> tuple[np.ndarray, Validation | None]:
     """The swarm's best particle or the classical start (see the module doc); the best
@@ -157,7 +143,7 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
     for a sample can beat uniform ones on it and lose with all the points) and judged on
     the rest: at the first parameters (the classical start with the smoothing the
     leave-one-out error picks there: it carries the configured one, which the classical
-    fit does not end with), and finished as the pipeline finishes it (:func:`finished_candidate`)."""
+    fit does not end with), and finished as the pipeline finishes it (:func:`psonurbs.fitting.finish.finishing.finish`)."""
     unseen = np.setdiff1d(np.arange(len(points)), seen)
     classical = search.classical()
     if len(unseen) < 4 or np.array_equal(best, classical):
@@ -173,8 +159,9 @@ def held_out_choice(search: KnotWeightSearch, best: np.ndarray, layout: NetLayou
         control = search.solver.with_smoothing(at_first).solve(layout.rows(uv[fitted], *shape), points[fitted],
                                                                 c(fitted))
         first.append(np.linalg.norm(layout.rows(uv[judged], *shape) @ control - points[judged], axis=1))
-        surface = finished_candidate(layout, search.solver.with_smoothing(smoothing), points[fitted], uv[fitted],
-                                     shape, len(seen), min(polish_iterations, ROUNDS), c(fitted))
+        candidate = FitPoints(points[fitted], uv[fitted], slice(0, len(seen)), c(fitted))  # the swarm's points first
+        surface = finish(layout, search.solver.with_smoothing(smoothing), candidate, shape,
+                         min(polish_iterations, ROUNDS)).surface
         polished.append(closest_parameters(surface, points[judged])[1])
         overshoot.append(reach(surface, cloud))
     test = Validation(paired_test(*first, c(judged)), paired_test(*polished, c(judged)), paired_test(*overshoot))

@@ -12,7 +12,7 @@ The levels are nested: the inner knots of each are a subset of the next one's (t
 configured uniform knots at the end), so every coarse surface lies in the finer spline
 space (knot insertion) and each level's least-squares fit can only be closer to the
 data than the last one's. No point is left out here: a coarse net's own approximation
-error is not noise, and the robust test (:mod:`psonurbs.fitting.robust`) would take it
+error is not noise, and the robust test (:mod:`psonurbs.fitting.prepare.robust_weights`) would take it
 for outliers at the data's edges; gross outliers are left out later, on the fine net.
 """
 from __future__ import annotations
@@ -21,11 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from psonurbs.fitting.finish.polish import polish
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.geometry.basis import uniform_inner_knots
 from psonurbs.geometry.net import NetLayout, NetShape
-
-from .polish import polish
-from .solve import RegularisedLeastSquares
 
 LEVEL_ROUNDS = 20  # parameter-correction rounds per level
 

@@ -34,7 +34,7 @@ parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the p
 Cost: O(N log M) for the nearest sample point of every point, the rest on the M <= ``EMBEDDED_POINTS``.
 
 The plane coordinates are then scaled to the unit square along the rectangle they fill
-best, as a plane projection is (:func:`psonurbs.fitting.parametrise.unit_square`).
+best, as a plane projection is (:func:`psonurbs.fitting.parameters.parametrisation.unit_square`).
 """
 from __future__ import annotations
 
@@ -47,8 +47,9 @@ from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from .parametrise import Parametrisation, unit_square
-from .polish import AndersonMixing
+from psonurbs.fitting.finish.polish import AndersonMixing
+
+from .parametrisation import Parametrisation, unit_square
 
 NEIGHBOURS = 10  # graph degree: enough for a connected, rigid graph, few enough to stay local
 EMBEDDED_POINTS = 5000  # points embedded (the others follow by their local frame)
@@ -267,7 +268,7 @@ def rigid_embedding(graph: SurfaceGraph, start: np.ndarray, rounds: int = RIGID_
 
     The local/global alternation lowers the energy every round but slowly (its bending
     modes contract by little per round), so the positions are Anderson-mixed
-    (:class:`psonurbs.fitting.polish.AndersonMixing`); a mixed round that does not lower
+    (:class:`psonurbs.fitting.finish.polish.AndersonMixing`); a mixed round that does not lower
     the energy is replaced by the plain one and the mixing restarted.
     """
     problem = RigidProblem(graph)

@@ -1,8 +1,8 @@
 """First parameters of an open patch: a plane projection where the cloud is a proper
 height field over the plane, the intrinsic embedding otherwise (``parametrisation``).
 
-``plane`` is :func:`psonurbs.fitting.parametrise.parametrise_open` (the plane the surface
-faces most squarely), ``intrinsic`` is :func:`psonurbs.fitting.intrinsic.parametrise_intrinsic`
+``plane`` is :func:`psonurbs.fitting.parameters.plane.parametrise_open` (the plane the surface
+faces most squarely), ``intrinsic`` is :func:`psonurbs.fitting.parameters.intrinsic.parametrise_intrinsic`
 (the cloud's own graph laid flat). ``auto`` keeps the plane unless one of two things
 shows that the projection misrepresents the surface:
 
@@ -17,8 +17,7 @@ shows that the projection misrepresents the surface:
   more of the cells of the unit square than the projection (a twisted strip projects
   onto a bow tie: the square's corners would be extrapolated). Little is enough: a strip
   twisted by 90 degrees leaves 5% of the square empty, and its fit over the plane is 25
-  times farther from the true surface than over the intrinsic parameters
-  (``benchmarks/unseen.py``).
+  times farther from the true surface than over the intrinsic parameters.
 
 A height field over a rectangle, steep flanks and all, projects onto exactly its
 rectangle, which the unrolled surface (whose boundary curves where the surface
@@ -34,7 +33,8 @@ import numpy as np
 from psonurbs.geometry import compiled
 
 from .intrinsic import embedding_sample, parametrise_intrinsic, surface_graph
-from .parametrise import Parametrisation, cell_counts, parametrise_open
+from .parametrisation import Parametrisation, cell_counts
+from .plane import parametrise_open
 
 METHODS = ("auto", "plane", "intrinsic")
 EDGE_ON = float(np.cos(np.radians(80.0)))  # |n . d| below this: seen edge-on, squeezed over 5.8 times
