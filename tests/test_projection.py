@@ -142,7 +142,9 @@ def test_compiled_search_takes_the_given_iterations_and_no_more(monkeypatch):
     converged, _ = closest_parameters(surface, points, start)
     assert seam_difference(numpy_uv, fast_uv, (True, False)).max() <= 1e-10  # one step: no flat minimum yet
     assert seam_difference(fast_uv, converged, (True, False)).max() > 1e-4  # one step is not all the way
-    np.testing.assert_allclose(fast_dist, numpy_dist, rtol=0, atol=1e-12)
+    # a distance is 1-Lipschitz in its foot point: the two may differ by the feet's gap, no more
+    foot_gap = np.linalg.norm(surface.evaluate(*fast_uv.T) - surface.evaluate(*numpy_uv.T), axis=1)
+    assert np.all(np.abs(fast_dist - numpy_dist) <= foot_gap + 1e-14)
 
 
 def test_point_at_its_foot_point_is_not_moved(search):
