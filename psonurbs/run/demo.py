@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from psonurbs.config import SwarmConfig
+
 __all__ = ["SAMPLES", "Sample", "write_samples"]
 
 
@@ -47,8 +49,8 @@ class Sample:
 
 
 def _swarm(particles: int = 12, iterations: int = 25) -> dict:
-    return {"particles": particles, "iterations": iterations, "inertia": 0.7, "c1": 1.5,
-            "c2": 1.5, "seed": 7}
+    """A small swarm for a quick first run, every other setting the config's default."""
+    return SwarmConfig(particles=particles, iterations=iterations).to_dict()
 
 
 SAMPLES = (
