@@ -272,6 +272,35 @@ case has one), the noise sigma and the junk share. `--seed N` draws the same cas
 afresh: a method tuned to the public clouds shows itself there.
 
 {case_list()}
+
+## Real scans
+
+`python3 benchmarks/run.py --suite real --scans SCANS/` fits every cloud in a directory of yours. No scans ship
+with the repository: each has its owner's terms. These public scans serve well, each converted to PLY without resampling or moving (coordinates in the
+source's units):
+
+- `bunny_front`: the Stanford Bunny's range image `bun000` (Stanford 3D Scanning
+  Repository; Cyberware 3030MS), its vertices unchanged; 40,256 points.
+- `terrain_isprs_samp51`: every point of the ground-only UTM version of ISPRS filter test
+  sample 51 (`terrain/samp51-utm-ground.pcd` in the Point Cloud Library's data
+  repository); stored as float32 at source, so the northings come in steps of 0.5 m;
+  13,950 points.
+- `terrain_lidr_topography`: the ground points (class 2) of the lidR package's example
+  tile `Topography.laz`; 8,159 points with lakes as holes.
+- `face_lps`: the front of Lee Perry-Smith's "Infinite, 3D Head Scan" (CC BY 3.0, credit
+  "Infinite, 3D Head Scan by Lee Perry-Smith / Infinite-Realities, based on a work at
+  www.triplegangers.com"): mesh vertices with z > -0.045, -0.15 < y < 0.07, |x| < 0.072,
+  facing +z and seen from +z; 2,252 points.
+- `soupcan_wall`, `mustard_body`, `tennis_ball`: YCB objects 005, 006 and 056 (CC BY 4.0,
+  the YCB Object and Model Set), vertices of the google_16k reconstructions: the can's
+  wall (0.008 < y < 0.094, duplicates removed), the bottle's body (0.012 < z < 0.13), the
+  whole ball.
+- `gymball_arkit`: a gym ball scanned with ARKit on an iPad (CurvSurf's FindSurface web
+  demo data; no licence found, use for testing only), the visible cap cropped from the
+  scene (y > -1.16, within 0.5 m of the ball's axis); raw, stripy, with strays.
+
+To score LAS/LAZ or E57 scans, fit them with `psonurbs fit` and give the scorer the same
+points as PLY or text (`benchmarks/score.py` reads PLY and x y z text only).
 """
 
 
