@@ -125,12 +125,13 @@ def fit_and_score(job: Job, variant: str, out: Path, exe: str = "psonurbs", scor
     return result
 
 
-def cell(value) -> str:
+def cell(value, digits: int = 3) -> str:
+    """A table cell: ``-`` for nothing, ``yes``/``NO`` for a check, floats to ``digits`` digits."""
     if value is None:
         return "-"
     if isinstance(value, bool):
         return "yes" if value else "NO"
-    return f"{value:.3g}" if isinstance(value, float) else str(value)
+    return f"{value:.{digits}g}" if isinstance(value, float) else str(value)
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:

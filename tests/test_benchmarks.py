@@ -36,7 +36,7 @@ def load(name: str, path: Path):
 
 cases = load("cases", REPO / "benchmarks" / "cases.py")  # the names the runner imports them by
 scorer = load("score", REPO / "benchmarks" / "score.py")
-runner = load("bench_run", REPO / "benchmarks" / "run.py")
+runner = load("run", REPO / "benchmarks" / "run.py")
 
 
 # ---- the generator ------------------------------------------------------------------------
@@ -280,7 +280,7 @@ def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
                            "--set", "swarm={particles: 2, iterations: 2}", "--set", "refine=false"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and line[2].isdigit()]
     assert [row.split(" | ")[0] for row in rows] == ["| 0", "| 1"]
-    assert all(row.split(" | ")[4] == "no" for row in rows)  # refine: false reached the fit
+    assert all(row.split(" | ")[4] == "NO" for row in rows)  # refine: false reached the fit
     written = (out / "config.yaml").read_text()
     assert "refine: false" in written and "particles: 2" in written and "polish_iterations: 3" in written
     moved = np.loadtxt(out / "draw1" / "sheet.xyz")
