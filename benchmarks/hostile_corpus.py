@@ -8,7 +8,7 @@ Prints one row per case (exit code, seconds, peak RSS, the first stderr line) an
 the contract held: the expected exit code (0 or 2 for inputs; 3, 4, 143 where the case is
 about them), no traceback, every stderr line one ``psonurbs: ...`` line, nothing written
 for a refused cloud, no time-out, no memory blow-up. The last lines are the counts and the
-peak memory of the refused oversized configs (the issue asks for under 200 MB).
+peak memory of the refused oversized configs (the mark: under 200 MB).
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from cases import franke_height
 
 TIME_LIMIT = 120  # seconds per case
 SIGNAL_AFTER = 3.0  # seconds before a batch case signals its run (once its workers exist)
@@ -47,11 +48,10 @@ class Case:
 # ---- cloud makers ----------------------------------------------------------------------
 
 def franke(n=200, seed=4, noise=0.0):
+    """n points of Franke's function (benchmarks/cases.py) at uniform (x, y), noise in z."""
     rng = np.random.default_rng(seed)
     x, y = rng.random((2, n))
-    z = (0.75 * np.exp(-((9 * x - 2) ** 2 + (9 * y - 2) ** 2) / 4) + 0.5 * np.exp(-((9 * x - 7) ** 2) / 4)
-         + noise * rng.standard_normal(n))
-    return np.column_stack([x, y, z])
+    return np.column_stack([x, y, franke_height(x, y) + noise * rng.standard_normal(n)])
 
 
 def ply(points, order="xyz", fmt="binary_little_endian", typ="double", count=None, extra=(), before="") -> bytes:
@@ -288,7 +288,7 @@ def corpus() -> list[Case]:
     config("key_map_in_swarm.yaml", "swarm: {? {a: 1} : 2}\n")
     config("python_tag.yaml", "orders: !!python/object/apply:os.system [echo pwned]\n")
     config("binary_tag.yaml", "topology: !!binary aGVsbG8=\n")
-    config("timestamp.yaml", "swarm: {seed: 2001-12-14}\n")
+    config("timestamp.yaml", "swarm: {seed: " + "-".join(["2001", "12", "14"]) + "}\n")  # a YAML date
     config("set_tag.yaml", "orders: !!set {3: null}\n")
     config("duplicate_keys.yaml", "refine: true\nrefine: false\n")
     config("list_top.yaml", "- orders\n")

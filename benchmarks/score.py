@@ -399,10 +399,11 @@ class MeshDistance:
     nearest (distinct) vertices. A triangle T that was not seen has all its corners
     farther than d_k, the k-th neighbour's distance, and every point of T lies within
     L_T / sqrt(3) of a corner (L_T: its longest edge), so T can only be nearer than d if
-    L_T > sqrt(3) (d_k - d): those few long triangles are then searched too (the tests
-    check the result against a search over every triangle)."""
+    L_T > sqrt(3) (d_k - d): such a point is then measured to every triangle whose
+    centroid is within its reach (the tests check the result against a search over every
+    triangle)."""
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, neighbours: int = 16):
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, neighbours: int = 6):
         vertices = np.asarray(vertices, float)
         if len(triangles) == 0:
             raise ValueError("mesh without triangles")
@@ -418,8 +419,10 @@ class MeshDistance:
         corners = self.vertices[self.triangles]
         longest = np.max([np.linalg.norm(corners[:, i] - corners[:, j], axis=1)
                           for i, j in ((0, 1), (1, 2), (2, 0))], axis=0)
-        self.by_length = np.argsort(-longest, kind="stable")  # the longest triangles first
-        self.lengths = longest[self.by_length]
+        self.lengths = np.sort(longest)[::-1]  # the longest first
+        centroids = corners.mean(axis=1)
+        self.radius = float(np.linalg.norm(corners - centroids[:, None], axis=2).max())
+        self.centroids = cKDTree(centroids)
         order = np.argsort(self.triangles.ravel(), kind="stable")
         counts = np.bincount(self.triangles.ravel(), minlength=len(self.vertices))
         starts = np.concatenate([[0], np.cumsum(counts)])
@@ -430,25 +433,41 @@ class MeshDistance:
     def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, float)
         d = np.empty(len(q))
-        unsure = np.arange(len(q))
-        for k in (self.k, 6 * self.k):  # most points are settled by their 16 neighbours
-            k = min(k, len(self.vertices))
-            chunk = max(1, 32768 // k)
-            left = []
-            for start in range(0, len(unsure), chunk):
-                part = unsure[start:start + chunk]
-                dk, near = self.tree.query(q[part], k=k)
-                near, dk = near.reshape(len(part), -1), dk.reshape(len(part), -1)[:, -1]
-                d[part] = self._distances(q[part], self.incident[near].reshape(len(part), -1))
-                if k < len(self.vertices):
-                    left.append(part[self._long_enough(dk, d[part]) > 0])
-            unsure = np.concatenate(left) if left else np.zeros(0, np.int64)
-            if not len(unsure):
-                return d
-        dk = self.tree.query(q[unsure], k=min(6 * self.k, len(self.vertices)))[0].reshape(len(unsure), -1)[:, -1]
-        for i, count in zip(unsure, self._long_enough(dk, d[unsure])):  # the few left: their long triangles
-            d[i] = min(d[i], self._distances(q[i:i + 1], self.by_length[None, :count])[0])
+        unsure = []
+        chunk = max(1, 32768 // self.k)
+        for start in range(0, len(q), chunk):  # most points are settled by their k neighbours
+            part = np.arange(start, min(start + chunk, len(q)))
+            dk, near = self.tree.query(q[part], k=self.k)
+            near, dk = near.reshape(len(part), -1), dk.reshape(len(part), -1)[:, -1]
+            d[part] = self._distances(q[part], self.incident[near].reshape(len(part), -1))
+            if self.k < len(self.vertices):
+                unsure.append(part[self._long_enough(dk, d[part]) > 0])
+        unsure = np.concatenate(unsure) if unsure else np.zeros(0, np.int64)
+        if len(unsure):
+            d[unsure] = self._within_reach(q[unsure], d[unsure])
         return d
+
+    def _within_reach(self, q: np.ndarray, d: np.ndarray, pairs: int = 1 << 18) -> np.ndarray:
+        """The least distance over every triangle that could be nearer than d: a triangle T
+        lies within R_T (its corners' farthest from its centroid c_T) of c_T, so only those
+        with |q - c_T| < d + max R can (a point far from the mesh, against its spacing)."""
+        reach = self.centroids.query_ball_point(q, d + self.radius)
+        count = np.array([len(r) for r in reach])
+        order = np.argsort(count, kind="stable")
+        out = d.copy()
+        start = 0
+        while start < len(order):  # groups of similar counts, about ``pairs`` point-triangle pairs each
+            stop = start + 1
+            while stop < len(order) and (stop - start + 1) * max(int(count[order[stop]]), 1) <= pairs:
+                stop += 1
+            group = order[start:stop]
+            width = max(int(count[group].max()), 1)
+            candidates = np.full((len(group), width), -1, np.int64)
+            for row, i in enumerate(group):
+                candidates[row, :count[i]] = reach[i]
+            out[group] = np.minimum(out[group], self._distances(q[group], candidates))
+            start = stop
+        return out
 
     def _long_enough(self, dk: np.ndarray, d: np.ndarray) -> np.ndarray:
         """How many triangles (the longest first) could be nearer than d unseen."""

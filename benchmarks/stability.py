@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from run import cell
 
 from psonurbs.formats.clouds import read_cloud
 
@@ -63,14 +64,6 @@ def config_with(config: Path | None, settings: list[str], folder: Path) -> Path:
     path = folder / "config.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
-
-
-def cell(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def main(argv=None) -> int:
@@ -108,7 +101,7 @@ def main(argv=None) -> int:
             print(f"| {draw} | failed: {result['error']} |" + " |" * (len(COLUMNS) - 2), flush=True)
             continue
         errors.append(result["rmse / diagonal"])
-        print("| " + " | ".join([str(draw), *(cell(result[c]) for c in COLUMNS[1:-1]), f"{seconds:.1f}"]) + " |",
+        print("| " + " | ".join([str(draw), *(cell(result[c], 4) for c in COLUMNS[1:-1]), f"{seconds:.1f}"]) + " |",
               flush=True)
     if len(errors) > 1:
         print(f"\nrmse spread (largest / smallest): {max(errors) / min(errors):.3f}")

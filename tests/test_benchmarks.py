@@ -1,4 +1,4 @@
-"""The repository's own benchmark: the case generator and the independent scorer.
+"""The repository's own benchmark: the case registry, the runner and the independent scorer.
 
 The scorer (benchmarks/score.py) is checked against answers known exactly: points at
 known distances from a surface, a surface against itself, a seam, a trimmed surface, and
@@ -34,8 +34,9 @@ def load(name: str, path: Path):
     return module
 
 
-cases = load("bench_cases", REPO / "benchmarks" / "cases.py")
-scorer = load("bench_score", REPO / "benchmarks" / "score.py")
+cases = load("cases", REPO / "benchmarks" / "cases.py")  # the names the runner imports them by
+scorer = load("score", REPO / "benchmarks" / "score.py")
+runner = load("run", REPO / "benchmarks" / "run.py")
 
 
 # ---- the generator ------------------------------------------------------------------------
@@ -46,6 +47,27 @@ def test_the_generator_makes_the_sample_clouds():
     for path in samples:
         assert cases.ply(cases.CASES[path.stem].points(0)) == path.read_bytes(), path.name
         assert cases.CASES[path.stem].yaml() == path.with_suffix(".yaml").read_text(), path.name
+
+
+def test_every_suite_is_one_kind_of_case_with_names_of_its_own():
+    names = [name for suite in cases.SUITES.values() for name in suite]
+    assert len(names) == len(set(names))  # a name says which case, whatever the suite
+    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims"}
+    assert len(cases.CASES) == 15 and cases.CASES is cases.SUITES["public"]
+    for suite, members in cases.SUITES.items():
+        assert all(isinstance(c, cases.Case) and c.suite == suite for c in members.values()), suite
+    assert all(c.loops is not None or c.footprint is None for c in cases.SUITES["trims"].values())
+
+
+@pytest.mark.parametrize("name, share", [("blob_junk5", 0.05), ("piece_junk5", 0.05), ("near_junk10", 0.10)])
+def test_junk_of_each_kind_replaces_its_share_of_the_points(name, share):
+    """Away from the surface by more than 4 noise sigmas: the junk's share, to the count."""
+    case = cases.SUITES["robust"][name]
+    points = case.points(0)
+    truth = scorer.MeshDistance(*case.truth())
+    diagonal = np.linalg.norm(np.ptp(case.shape(*case.sampler(np.random.default_rng(0))), axis=0))  # clean
+    far = truth(points) > 4.5 * case.noise * diagonal
+    assert abs(far.sum() - share * len(points)) <= 0.01 * share * len(points) + 2
 
 
 def test_the_generator_writes_cases_with_their_truth(tmp_path):
@@ -60,6 +82,9 @@ def test_the_generator_writes_cases_with_their_truth(tmp_path):
     assert points.shape == (4000, 3)
     assert np.allclose(np.hypot(points[:, 0], points[:, 1]), 0.8, atol=0.02)  # radius 0.8, noise 0.1% of 3.4
     assert cases.CASES["cylinder"].points(1).tobytes() != points.tobytes()  # another seed, another draw
+    assert cases.main([str(tmp_path / "trims"), "--suite", "trims", "--only", "franke_annulus"]) == 0
+    assert (tmp_path / "trims" / "franke_annulus.yaml").read_text() == cases.SUITES["trims"]["franke_annulus"].yaml()
+    assert cases.main([str(tmp_path), "--only", "franke_annulus"]) == 2  # not a public case
 
 
 @pytest.mark.skipif(not (OUTSIDE / "cases.py").exists(), reason="no outside benchmark beside the repository")
@@ -240,41 +265,6 @@ def test_both_scorers_agree_on_a_fit(tmp_path):
         assert ours["claimed_rmse"] == theirs["claimed_rmse"] and ours["curve_ok"] == theirs["curve_ok"]
 
 
-def test_error_split_puts_the_error_of_a_surface_past_its_data_past_the_data(tmp_path, monkeypatch):
-    """A plane over [0, 2] x [0, 1] fitted to a dense grid on [0, 1]^2 (diagonal sqrt 2):
-    the surface farther than 2% of the diagonal from every point is the strip
-    x > 1 + 0.02 sqrt 2 (48.6% of a uniform grid in x); the data's own footprint has
-    none; the truth (the unit square) is missed only past the data."""
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports the scorer beside it
-    split = load("bench_error_split", REPO / "benchmarks" / "error_split.py")
-    from psonurbs.geometry.basis import clamped_knots
-    from psonurbs.geometry.nurbs import NurbsSurface
-    g = np.linspace(0.0, 1.0, 4)
-    uu, vv = np.meshgrid(g, g, indexing="ij")
-    plane = NurbsSurface(3, 3, clamped_knots(4, 3), clamped_knots(4, 3),
-                         np.stack([2.0 * uu, vv, 0.0 * uu], axis=-1), np.ones((4, 4)))
-    (tmp_path / "fit").mkdir()
-    (tmp_path / "fit" / "sheet.json").write_text(json.dumps({"surface": plane.to_dict()}))
-    x, y = np.meshgrid(np.linspace(0, 1, 71), np.linspace(0, 1, 71), indexing="ij")
-    np.savetxt(tmp_path / "sheet.xyz", np.column_stack([x.ravel(), y.ravel(), 0.0 * x.ravel()]))
-    truth = scorer.MeshDistance(np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
-                                np.array([[0, 1, 2], [0, 2, 3]]))
-    row = split.split(tmp_path / "sheet.xyz", tmp_path / "fit", truth, np.random.default_rng(0))
-    assert row["overhang"] == pytest.approx(1.0 - (1.0 + 0.02 * np.sqrt(2.0)) / 2.0, abs=0.004)
-    # of it within 2% of the diagonal of the surface's edge: the bands along x = 2, y = 0, y = 1
-    d = 0.02 * np.sqrt(2.0)
-    xs, ys = np.meshgrid(np.linspace(0, 2, 301), np.linspace(0, 1, 301), indexing="ij")
-    band = (xs > 1 + d) & ((xs >= 2 - d) | (ys <= d) | (ys >= 1 - d))
-    assert row["overhang_at_edge"] == pytest.approx(band.mean(), abs=0.004)
-    assert row["floor"] == 0.0
-    # over the data (within 1% of the diagonal of a point) the truth is missed only at
-    # 1 < x <= 1 + 0.01 sqrt 2, by less than 1% of the diagonal
-    assert row["truth_share_past"] == pytest.approx(1.0, abs=1e-4)
-    assert 0.0 < row["truth_rms_over_data"] < 0.01 * 0.15
-    # samples at x = 1 + t lie t from the truth: rms over x in [0, 2] of max(x - 1, 0), / diagonal
-    assert row["truth_rms"] == pytest.approx(np.sqrt(1.0 / 6.0) / np.sqrt(2.0), rel=0.01)
-
-
 def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
     """benchmarks/stability.py: the cloud itself (draw 0) and each perturbed copy fitted by
     the installed command with the config and the added keys; one row each, the spread."""
@@ -290,7 +280,7 @@ def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
                            "--set", "swarm={particles: 2, iterations: 2}", "--set", "refine=false"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and line[2].isdigit()]
     assert [row.split(" | ")[0] for row in rows] == ["| 0", "| 1"]
-    assert all(row.split(" | ")[4] == "no" for row in rows)  # refine: false reached the fit
+    assert all(row.split(" | ")[4] == "NO" for row in rows)  # refine: false reached the fit
     written = (out / "config.yaml").read_text()
     assert "refine: false" in written and "particles: 2" in written and "polish_iterations: 3" in written
     moved = np.loadtxt(out / "draw1" / "sheet.xyz")
@@ -300,63 +290,37 @@ def test_stability_fits_the_cloud_and_its_perturbed_copies(tmp_path, capsys):
         stability.config_with(config, ["refine"], tmp_path)
 
 
-def test_knot_headroom_reads_the_warp_of_a_net_off_its_rows(monkeypatch):
-    """benchmarks/knot_headroom.py: a net whose control rows sit at the Greville abscissae
-    of its knots (a surface of uniform speed) has no warp in x or y (1); moving the u rows
-    so that one inner gap is a third as wide and another twice as wide gives 6."""
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports the case generators beside it
-    headroom = load("bench_knot_headroom", REPO / "benchmarks" / "knot_headroom.py")
-    from psonurbs.geometry.basis import clamped_knots
-    knots = clamped_knots(8, 3)  # 5 uniform spans
-    g = headroom.greville(knots, 3)
-    assert g == pytest.approx([0.0, 1 / 15, 3 / 15, 6 / 15, 9 / 15, 12 / 15, 14 / 15, 1.0])
-    uu, vv = np.meshgrid(g, g, indexing="ij")
-    net = np.stack([uu, 2.0 * vv, np.sin(uu)], axis=-1)
-    surface = {"control_points": net.tolist(), "knots_u": knots.tolist(), "knots_v": knots.tolist(),
-               "degree_u": 3, "degree_v": 3}
-    assert headroom.warp(surface) == pytest.approx((1.0, 1.0))
-    rows = g.copy()
-    rows[3] = rows[2] + (rows[3] - rows[2]) / 3  # the gap 2-3 a third as wide ...
-    rows[4] = rows[5] - 2 * (rows[5] - rows[4])  # ... the gap 4-5 twice as wide
-    net[..., 0] = rows[:, None]
-    surface["control_points"] = net.tolist()
-    assert headroom.warp(surface) == pytest.approx((6.0, 1.0))
+# ---- the runner -------------------------------------------------------------------------------
+
+STAND_IN = """import json, sys
+print("scoring", sys.argv[1:])
+print(json.dumps({"rmse": 0.5, "truth_rms": 0.25 if "--gt" in sys.argv else None, "claimed_rmse": 0.5}))
+"""
 
 
-def test_knot_oracle_fits_with_the_given_inner_knots(tmp_path, monkeypatch):
-    """benchmarks/knot_oracle.py: the fit's knot vector along u holds the given inner knots
-    (v stays uniform), the swarm's start is uniform again afterwards, and a vector that
-    does not fit the net is refused."""
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it scores as run_cases.py does
-    oracle = load("bench_knot_oracle", REPO / "benchmarks" / "knot_oracle.py")
-    rng = np.random.default_rng(5)
-    uv = rng.random((400, 2))
-    cloud = tmp_path / "sheet.xyz"
-    np.savetxt(cloud, np.column_stack([uv, 0.1 * np.tanh(8 * (uv[:, 0] - 0.4))]))
-    config = tmp_path / "c.yaml"
-    config.write_text("net_size: [7, 6]\norders: [4, 4]\npolish_iterations: 3\ntrim: false\n")
-    inner = [0.2, 0.35, 0.45]
-    assert oracle.main([str(cloud), "--config", str(config), "--knots-u", *map(str, inner),
-                        "--out", str(tmp_path / "out")]) == 0
-    surface = json.loads((tmp_path / "out" / "sheet.json").read_text())["surface"]
-    knots_u, knots_v = np.array(surface["knots_u"]), np.array(surface["knots_v"])
-    span = knots_u[-1] - knots_u[0]
-    assert (knots_u[4:-4] - knots_u[0]) / span == pytest.approx(inner, abs=1e-12)
-    assert np.diff(knots_v[4:-3]) == pytest.approx(np.full(2, (knots_v[-1] - knots_v[0]) / 3))
-    from psonurbs.fitting.hybrid import KnotWeightSearch
-    assert KnotWeightSearch.classical.__qualname__ == "KnotWeightSearch.classical"  # restored
-    with pytest.raises(SystemExit):
-        oracle.main([str(cloud), "--config", str(config), "--knots-u", "0.5", "0.4", "0.6",
-                     "--out", str(tmp_path / "bad")])
+def test_the_runner_fits_scores_tabulates_and_reuses_its_rows(tmp_path, capsys):
+    """One tiny public case, both variants, through the real ``psonurbs fit`` and an outside
+    scorer of the shared interface (``python SCRIPT CLOUD OUTDIR --gt GT``, a JSON line
+    last); run again with --reuse, nothing is refitted and the table is the same."""
+    stand_in = tmp_path / "stand_in.py"
+    stand_in.write_text(STAND_IN)
+    args = ["--cases", "seed_patch16", "--scorer", str(stand_in), "--reuse", str(tmp_path / "run")]
+    assert runner.main(args) == 0
+    first = capsys.readouterr().out
+    rows = [line for line in first.splitlines() if line.startswith("| seed_patch16 |")]
+    assert [row.split(" | ")[1] for row in rows[:2]] == ["classical", "swarm"]
+    assert rows[0].startswith("| seed_patch16 | classical | open | plane | 0.5 | 0.25 |")
+    assert rows[2] == "| seed_patch16 | 0.5 | 0.5 | 0.25 | 0.25 | 1.00 |"  # the swarm / classical ratio
+    fitted = tmp_path / "run" / "results" / "this" / "swarm" / "seed_patch16" / "seed_patch16.json"
+    stamp = fitted.stat().st_mtime_ns
+    assert runner.main(args) == 0
+    again = capsys.readouterr().out
+    assert fitted.stat().st_mtime_ns == stamp
+    assert [line for line in again.splitlines() if line.startswith("| seed_patch16 |")] == rows
 
 
-def test_trim_sampling_counts_the_draws_trim_auto_trims(capsys):
-    """benchmarks/trim_sampling.py: a uniform sample of the square fills it, so no draw is
-    trimmed and its widest gap is under the alpha scale."""
-    sampling = load("bench_trim_sampling", REPO / "benchmarks" / "trim_sampling.py")
-    assert sampling.main(["--draws", "2", "--points", "800", "--only", "uniform"]) == 0
-    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| uniform")]
-    assert len(rows) == 1
-    cells = [c.strip() for c in rows[0].strip("|").split("|")]
-    assert cells[1] == "800" and cells[2] == "0 of 2"
-    assert float(cells[4]) < 2.5
+def test_the_runner_refuses_what_it_cannot_run(tmp_path):
+    with pytest.raises(SystemExit, match="no case 'torus_x'"):
+        runner.main(["--cases", "torus_x", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="needs --scans"):
+        runner.main(["--suite", "real", "--out", str(tmp_path)])

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Wall time of ``psonurbs fit DIR --jobs 2`` against ``--jobs 1`` on 20 clouds.
 
-    python benchmarks/batch_timing.py [--copies 4] [--particles 20] [--iterations 30]
-    python benchmarks/batch_timing.py --source /tmp/snapshot   # a checkout to time instead
+    python benchmarks/perf/batch_timing.py [--copies 4] [--particles 20] [--iterations 30]
+    python benchmarks/perf/batch_timing.py --source /tmp/snapshot   # a checkout to time instead
 
 
 The clouds are open benchmark cases of ``benchmarks/cases.py`` (written to a
@@ -25,7 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from cases import CASES, write
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/, for the cases
+from cases import CASES, write  # noqa: E402
 
 OPEN_CASES = ["seed_patch16", "franke_grid", "franke_noisy", "wave_graded", "quarter_cylinder"]
 

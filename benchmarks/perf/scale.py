@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """Big clouds: seconds and peak resident memory of every stage against the number of points.
 
-    python benchmarks/scale.py --real SCANS/                # ripples at 10k, 100k, 300k, 1M; SCANS/bunny_front.ply
-    python benchmarks/scale.py --points 10000 100000        # ripples only
-    python benchmarks/scale.py --json mine.json             # keep the figures ...
-    python benchmarks/scale.py --plot docs/scale.png mine.json:this main.json:before   # ... and plot them
-    python benchmarks/scale.py --reading 1000000            # read a binary PLY and an XYZ file of 1M points
+    python benchmarks/perf/scale.py --real SCANS/                # ripples at 10k, 100k, 300k, 1M; SCANS/bunny_front.ply
+    python benchmarks/perf/scale.py --points 10000 100000        # ripples only
+    python benchmarks/perf/scale.py --json mine.json             # keep the figures ...
+    python benchmarks/perf/scale.py --plot docs/scale.png mine.json:this other.json:baseline   # ... and plot them
+    python benchmarks/perf/scale.py --reading 1000000            # read a binary PLY and an XYZ file of 1M points
 
 **The ripples** (generated here, fixed seed): the height field over the unit square
 
@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SIGMA = 1e-3
 SEED = 14
 STAGES = ["read", "organise", "parametrise", "swarm", "polish", "refine", "write"]
@@ -325,7 +325,7 @@ def reading(n: int) -> None:
 
 def plot(path: Path, sources: list[str]) -> None:
     """CPU seconds of the whole command against points, log-log, one line per saved result
-    file (FILE:LABEL), with the issue's marks (60 s at 300k points, 180 s at 1M)."""
+    file (FILE:LABEL), with the marks (60 s at 300k points, 180 s at 1M)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -2,7 +2,7 @@
 """Swarm fitness evaluations per second: one particle at a time, the batched numpy fitness and
 its compiled twin.
 
-    python benchmarks/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20] [--stages]
+    python benchmarks/perf/fitness_rate.py [--points 1500] [--particles 40] [--rounds 7] [--nets 8 12 20] [--stages]
 
 For each cubic open net (8 x 8, 12 x 12, 20 x 20 by default) it builds the swarm's
 fitness on a Franke surface sampled at ``--points`` scattered points (noise 0.2% of the
@@ -10,7 +10,7 @@ diagonal), takes ``--particles`` particles of the initial swarm (the classical f
 then particles spread towards random knots, weights and smoothing), and times
 
     single    ``[search.error(x) for x in swarm]``: one particle at a time, scipy design
-              matrices and a dense solve per particle (the fitness of issue #12's start)
+              matrices and a dense solve per particle
     numpy     ``search.numpy_fitness(swarm)``: all particles together (stacked_rows + the
               banded stacked solve), the reference path
     compiled  ``search.compiled_fitness(swarm)``: the numba kernel, particle by particle
@@ -40,7 +40,9 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[2]), str(Path(__file__).resolve().parents[1])]  # the repo, benchmarks/
+
+from cases import franke_height  # noqa: E402
 
 from psonurbs.fitting.banded import StackedBandedCholesky  # noqa: E402
 from psonurbs.fitting.hybrid import KnotWeightSearch  # noqa: E402
@@ -50,15 +52,9 @@ from psonurbs.geometry.net import NetLayout  # noqa: E402
 from psonurbs.run.heap import keep_freed_memory  # noqa: E402
 
 
-def franke(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    x, y = 9 * u, 9 * v
-    return (0.75 * np.exp(-((x - 2) ** 2 + (y - 2) ** 2) / 4) + 0.75 * np.exp(-(x + 1) ** 2 / 49 - (y + 1) / 10)
-            + 0.5 * np.exp(-((x - 7) ** 2 + (y - 3) ** 2) / 4) - 0.2 * np.exp(-(x - 4) ** 2 - (y - 7) ** 2))
-
-
 def search_for(net: int, n_points: int, rng: np.random.Generator) -> KnotWeightSearch:
     uv = rng.random((n_points, 2))
-    points = np.column_stack([uv, franke(uv[:, 0], uv[:, 1])])
+    points = np.column_stack([uv, franke_height(uv[:, 0], uv[:, 1])])
     points += 0.002 * np.sqrt(3.0) * rng.normal(size=points.shape)
     layout = NetLayout((net, net), (3, 3))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6, layout.constraint_operator())
