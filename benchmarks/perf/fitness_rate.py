@@ -44,24 +44,24 @@ sys.path[:0] = [str(Path(__file__).resolve().parents[2]), str(Path(__file__).res
 
 from cases import franke_height  # noqa: E402
 
-from psonurbs.fitting.banded import StackedBandedCholesky  # noqa: E402
-from psonurbs.fitting.hybrid import KnotWeightSearch  # noqa: E402
-from psonurbs.fitting.solve import RegularisedLeastSquares  # noqa: E402
+from psonurbs.fitting.leastsq.banded import StackedBandedCholesky  # noqa: E402
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace  # noqa: E402
+from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares  # noqa: E402
 from psonurbs.geometry import compiled  # noqa: E402
 from psonurbs.geometry.net import NetLayout  # noqa: E402
 from psonurbs.run.heap import keep_freed_memory  # noqa: E402
 
 
-def search_for(net: int, n_points: int, rng: np.random.Generator) -> KnotWeightSearch:
+def search_for(net: int, n_points: int, rng: np.random.Generator) -> KnotWeightSpace:
     uv = rng.random((n_points, 2))
     points = np.column_stack([uv, franke_height(uv[:, 0], uv[:, 1])])
     points += 0.002 * np.sqrt(3.0) * rng.normal(size=points.shape)
     layout = NetLayout((net, net), (3, 3))
     solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6, layout.constraint_operator())
-    return KnotWeightSearch(layout, solver, points, uv, True, 0.2, (0.2, 5.0))
+    return KnotWeightSpace(layout, solver, points, uv, True, 0.2, (0.2, 5.0))
 
 
-def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tuple[dict, dict]:
+def best_rounds(search: KnotWeightSpace, swarm: np.ndarray, rounds: int) -> tuple[dict, dict]:
     """Best (wall, cpu) seconds over interleaved rounds of each way, and the values."""
     runs = {"single": lambda: [search.error(x) for x in swarm], "numpy": lambda: search.numpy_fitness(swarm)}
     if compiled.ENABLED:
@@ -79,7 +79,7 @@ def best_rounds(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> tup
     return best, values
 
 
-def first_call(search: KnotWeightSearch, swarm: np.ndarray) -> float:
+def first_call(search: KnotWeightSpace, swarm: np.ndarray) -> float:
     """Wall seconds of the compiled fitness's first call: compiling the kernels (or
     loading them from numba's cache) and one evaluation."""
     wall = time.perf_counter()
@@ -87,7 +87,7 @@ def first_call(search: KnotWeightSearch, swarm: np.ndarray) -> float:
     return time.perf_counter() - wall
 
 
-def stage_costs(search: KnotWeightSearch, swarm: np.ndarray, rounds: int) -> dict[str, float]:
+def stage_costs(search: KnotWeightSpace, swarm: np.ndarray, rounds: int) -> dict[str, float]:
     """CPU ms per evaluation of each stage of the batched fitness, best of ``rounds``,
     each timed from cold caches over all groups of the swarm."""
     stacked, size = search.stacked, search.group_size

@@ -71,10 +71,9 @@ WRAPPED = {
     ("psonurbs.fitting.pipeline", "local_outliers"): ("organise", None),
     ("psonurbs.fitting.pipeline", "classical_weights"): ("swarm", None),
     ("psonurbs.fitting.pipeline", "minimise"): ("swarm", None),
-    ("psonurbs.fitting.pipeline", "held_out_choice"): ("swarm", None),
-    ("psonurbs.fitting.pipeline", "polish"): ("polish", None),
-    ("psonurbs.fitting.pipeline", "refine_jointly"): ("refine", None),
-    ("psonurbs.fitting.pipeline", "anchored"): ("refine", None),
+    ("psonurbs.fitting.pipeline", "held_out_choice"): ("swarm", None),  # the validation finishes its candidates
+    ("psonurbs.fitting.pipeline", "finish"): ("polish", None),  # polish, smoothing, polish
+    ("psonurbs.fitting.pipeline", "refined_if_better"): ("refine", None),  # refinement, its polish, acceptance
     ("psonurbs.fitting.pipeline", "run_hybrid"): (None, "write"),
     ("psonurbs.fitting.pipeline", "run_full"): (None, "write"),
     ("psonurbs.fitting.pipeline", "finished"): ("polish", "write"),  # a big cloud's last rounds on all points
