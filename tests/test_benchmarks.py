@@ -45,7 +45,13 @@ def test_the_generator_makes_the_sample_clouds():
     samples = sorted(SAMPLES.glob("*.ply"))
     assert len(samples) == 5
     for path in samples:
-        assert cases.ply(cases.CASES[path.stem].points(0)) == path.read_bytes(), path.name
+        made, kept = (data.partition(b"end_header\n") for data in (cases.ply(cases.CASES[path.stem].points(0)),
+                                                                     path.read_bytes()))
+        assert made[0] == kept[0], path.name  # the same header: the same points, count and layout
+        # to rounding only: numpy's exp may differ in the last bit between builds (SIMD or not)
+        made_xyz, kept_xyz = (np.frombuffer(data[2], "<f8") for data in (made, kept))
+        np.testing.assert_allclose(made_xyz, kept_xyz, rtol=0, atol=2 * np.finfo(float).eps * np.abs(kept_xyz).max(),
+                                   err_msg=path.name)
         assert cases.CASES[path.stem].yaml() == path.with_suffix(".yaml").read_text(), path.name
 
 
