@@ -45,8 +45,8 @@ sys.path[:0] = [str(Path(__file__).resolve().parents[2]), str(Path(__file__).res
 from cases import franke_height  # noqa: E402
 
 from psonurbs.fitting.leastsq.banded import StackedBandedCholesky  # noqa: E402
-from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace  # noqa: E402
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares  # noqa: E402
+from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace  # noqa: E402
 from psonurbs.geometry import compiled  # noqa: E402
 from psonurbs.geometry.net import NetLayout  # noqa: E402
 from psonurbs.run.heap import keep_freed_memory  # noqa: E402
