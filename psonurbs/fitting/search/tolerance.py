@@ -5,7 +5,8 @@ diagonal) the net is not given but searched. A share :data:`HOLD_OUT` of the poi
 drawn once from the config's seed, is held out for the whole search; every net tried is
 the full fit of that size (the swarm placing the knots, its classical fallback, the
 finish) on the other points, judged by the tolerance's measure of the distances of the
-held-out points to it (p99, max or rms):
+held-out points to it (p99, max or rms; a point whose foot lies on the edge of the
+domain, beyond the points the fit saw, is left out of the judgement, :func:`inside`):
 
     grow     from the smallest net the orders allow (an open or closed direction: its
              order; a sphere's v at least 3), by x GROWTH and at least +1, in the
@@ -41,6 +42,7 @@ import numpy as np
 from psonurbs.config import FIELDS, SPHERE_MIN_V
 from psonurbs.errors import PsonurbsError
 from psonurbs.fitting.budget import check_budget
+from psonurbs.fitting.parameters.topology import layout_for
 from psonurbs.fitting.prepare.organise import organise
 from psonurbs.fitting.prepare.outliers import local_outliers
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -55,6 +57,7 @@ GROWTH = 1.3  # a net grows by this factor (and at least one control point) per 
 UNEVEN = 1.5  # a direction is grown alone when its spans' excess is this much more concentrated
 PLATEAU = 0.97  # a grown net gains when its error is below this share of the best so far
 GAUSSIAN_P99 = 2.576  # the 99th percentile of |N(0, 1)|
+EDGE = 1e-9  # a foot parameter this close to 0 or 1 is on the edge of the domain
 NOISE_MARGIN = 1.05  # an error within this factor of what the noise allows cannot fall further
 
 
@@ -164,6 +167,17 @@ def _held_distances(surface: NurbsSurface, points: np.ndarray) -> tuple[np.ndarr
     return uv, dist * scale
 
 
+def inside(uv: np.ndarray, bounded: tuple[bool, bool]) -> np.ndarray:
+    """(n,) bool: the foot parameters uv (n, 2) not on an edge of a bounded direction. A
+    held-out point whose foot is on the edge lies beyond the points the fit saw (its
+    domain ends at theirs): its distance is the gap to their footprint, not the fit's error."""
+    keep = np.ones(len(uv), bool)
+    for column, edge in enumerate(bounded):
+        if edge:
+            keep &= (uv[:, column] > EDGE) & (uv[:, column] < 1 - EDGE)
+    return keep if keep.any() else np.ones(len(uv), bool)
+
+
 def tolerance_sentence(tolerance: dict) -> str:
     """The summary's words for ``fit.tolerance``: 'tolerance 3.0e-04 (p99) met: 2.7e-04 with
     9x7 control points', or 'not met: best ... (noise ...)'."""
@@ -204,6 +218,8 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
         result = fit(train, sized, on_iteration=on_iteration)
         topology = result.topology  # auto: chosen once, at the first net
         uv, dist = _held_distances(result.surface, judged)
+        covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
+        uv, dist = uv[covered], dist[covered]
         step = Step(size, measure(dist, name), time.perf_counter() - start,
                     span_concentration(uv, np.maximum(dist - value, 0.0), result.surface))
         steps[size] = step
