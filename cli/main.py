@@ -450,6 +450,8 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
       STEM_distance.png  the points coloured by their distance to the surface
       STEM_domain.png    the parameter domain: foot points, knot lines, trim loops
       STEM_basis.png     the basis functions of both knot vectors
+      STEM_tolerance.png with a tolerance: error against control points of
+                         the nets the search tried
 
     Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,
     130 interrupted, 143 terminated.
