@@ -201,13 +201,16 @@ def cli() -> None:
 @click.option("--fail-suspect", is_flag=True,
               help="Gate: exit 3 if a fit fails a self-check (surface or net far outside the "
                    "cloud's box, a fold, surface far from every point).")
+@click.option("--fail-unmet", is_flag=True,
+              help="Gate: exit 3 if a fit to a tolerance (--tolerance, --tolerance-rel) does not meet it.")
 @quiet_option
 @click.pass_context
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
-        topology: str | None, strategy: str | None, parametrisation: str | None, jobs: int,
+        topology: str | None, strategy: str | None, parametrisation: str | None,
+        tolerance: float | None, tolerance_rel: float | None, jobs: int,
         scheduler: str | None, formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None,
-        fail_suspect: bool, quiet: bool) -> None:
+        fail_suspect: bool, fail_unmet: bool, quiet: bool) -> None:
     """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
 
     A CLOUD may be a file, a directory (its cloud files) or a quoted glob
@@ -219,6 +222,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
                        metrics (rmse, max_error, ...), fit info and config
       STEM.ply, .obj   the tessellated surface as a triangle mesh
       STEM_error.csv   the error curve, one row per swarm iteration
+      STEM_tolerance.csv  with a tolerance: the nets the search tried
       STEM.igs, .3dm   with --format iges / 3dm
       STEM.step        with --format step
 
@@ -240,6 +244,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       psonurbs fit 'survey/*.laz' -o results/ --scheduler tcp://head-node:8786 -q
       psonurbs fit 'scans/**/*.ply' -o results/ --max-rmse-rel 1e-3 -q   # CI gate
       psonurbs fit dome.xyz -o results/ --topology sphere --particles 20 --iterations 100
+      psonurbs fit scan.ply -c part.yaml -o results/ --tolerance-rel 3e-4 --fail-unmet
 
     Exit codes:
 
@@ -249,8 +254,9 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
       2    unusable input or config (with several clouds: at least one
            could not be used; the others were still fitted)
       3    gate exceeded: a fit's rmse is above --max-rmse or --max-rmse-rel,
-           or it is suspect with --fail-suspect (its files are written;
-           the others are still fitted)
+           it is suspect with --fail-suspect, or it does not meet its
+           tolerance with --fail-unmet (its files are written; the others
+           are still fitted)
       4    a worker process died while fitting a cloud (with --jobs N:
            killed, out of memory; with --scheduler: lost twice); the
            others are still fitted
@@ -261,9 +267,10 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     """
     try:
         code = _fit_all(clouds, config_path, out_dir, quiet, jobs, scheduler, formats,
-                        Gate(max_rmse, max_rmse_rel, fail_suspect), _fitter(ctx),
+                        Gate(max_rmse, max_rmse_rel, fail_suspect, fail_unmet), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
-                             topology=topology, strategy=strategy, parametrisation=parametrisation))
+                             topology=topology, strategy=strategy, parametrisation=parametrisation,
+                             tolerance=tolerance, tolerance_rel=tolerance_rel))
     except KeyboardInterrupt as stop:
         code = _stopped(stop)
     except Exception as e:  # a bug outside a cloud's fit
@@ -367,6 +374,8 @@ def _report(row: Row) -> None:
     click.echo("; ".join([line, *row.notes]))
     for warning in row.warnings:
         click.echo(f"psonurbs: warning: {one_line(row.file)}: suspect fit: {warning}", err=True)
+    if row.unmet:
+        click.echo(f"psonurbs: warning: {one_line(row.file)}: {row.unmet}", err=True)
     if row.status == "gate-exceeded":
         gate_reason = row.message.split("; ")[0]
         click.echo(f"psonurbs: gate exceeded: {one_line(row.file)}: {gate_reason}", err=True)
@@ -441,6 +450,8 @@ def plot_command(ctx: click.Context, result: Path, cloud: Path | None, out_dir: 
       STEM_distance.png  the points coloured by their distance to the surface
       STEM_domain.png    the parameter domain: foot points, knot lines, trim loops
       STEM_basis.png     the basis functions of both knot vectors
+      STEM_tolerance.png with a tolerance: error against control points of
+                         the nets the search tried
 
     Exit codes: 0 ok, 1 internal error, 2 unusable input or matplotlib missing,
     130 interrupted, 143 terminated.

@@ -127,6 +127,7 @@ class _TooLarge(ConfigError):
 # its dataclass.
 
 INTEGER, NUMBER, CHOICE, SWITCH, AUTO_SWITCH = "integer", "number", "choice", "switch", "auto-switch"
+TOLERANCE_MEASURES = ("p99", "max", "rms")  # of the point-to-surface distances a tolerance bounds
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
 PARAMETRISATIONS = ("auto", "plane", "intrinsic")  # first parameters of an open patch
@@ -255,9 +256,10 @@ def _learning_factor(key: str, towards: str) -> Field:
 FIELDS: dict[str, Field] = {f.key: f for f in (
     Field("orders", INTEGER, (3, 3), "orders k, l (degree + 1) along u, v", pair=True, least=2,
           most=10, why="degree 9 at most", note="(order = degree + 1)", also="each <= its `net_size`"),
-    Field("net_size", INTEGER, (5, 5), "control points along u, v", pair=True, least=1, most=1000,
+    Field("net_size", INTEGER, (5, 5), "control points along u, v; `auto` (the default with a tolerance): "
+          "searched, with a tolerance given: the largest net the search may use", pair=True, least=1, most=1000,
           why="control points along one direction",
-          also=f"at least {SPHERE_MIN_V} along v for a sphere"),
+          also=f"at least {SPHERE_MIN_V} along v for a sphere; `auto` only with a tolerance"),
     Field("topology", CHOICE, "open", "shape of the parameter domain (closed directions are periodic); "
           "auto: chosen from the cloud", choices=TOPOLOGIES, option="--topology"),
     Field("strategy", CHOICE, "hybrid", "hybrid: the swarm searches knots and weights, least squares gives "
@@ -304,6 +306,14 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
           "field over it)", choices=PARAMETRISATIONS, option="--parametrisation"),
     Field("trim", AUTO_SWITCH, "auto", "trim an open surface to the data's footprint: auto where the "
           "footprint leaves a gap or a hole, true always, false never"),
+    Field("tolerance", NUMBER, None, "fit to this tolerance (cloud units): the smallest net whose "
+          "`tolerance_measure` of the distances meets it is searched", least=0, least_open=True,
+          also="`tolerance` or `tolerance_rel`, not both", option="--tolerance"),
+    Field("tolerance_rel", NUMBER, None, "the tolerance as a fraction of the cloud's bounding-box diagonal",
+          least=0, least_open=True, most=1, why="a fraction of the bounding-box diagonal",
+          also="`tolerance` or `tolerance_rel`, not both", option="--tolerance-rel"),
+    Field("tolerance_measure", CHOICE, "p99", "what of the point-to-surface distances the tolerance bounds: "
+          "their 99th percentile, their max or their rms", choices=TOLERANCE_MEASURES),
 )}
 ALIASES = {"remove_outliers": "robust"}  # another name: the key it stands for
 
@@ -362,7 +372,9 @@ class FitConfig:
     """
 
     orders: tuple[int, int] = default("orders")
-    net_size: tuple[int, int] = default("net_size")
+    # None: not given, which is FIELDS' default, or auto when a tolerance is given (kept
+    # apart so that an override adding a tolerance still searches the net)
+    net_size: tuple[int, int] | str | None = None
     topology: str = default("topology")
     strategy: str = default("strategy")
     swarm: SwarmConfig = field(default_factory=SwarmConfig)
@@ -378,17 +390,29 @@ class FitConfig:
     robust: bool = default("robust")
     parametrisation: str = default("parametrisation")
     trim: str | bool = default("trim")
+    tolerance: float | None = default("tolerance")
+    tolerance_rel: float | None = default("tolerance_rel")
+    tolerance_measure: str = default("tolerance_measure")
 
     def __post_init__(self) -> None:
         # Checked in this order, the rules between keys as soon as their keys are: the
         # first error of a config with several is the one reported.
-        _normalise(self, "", "orders", "net_size")
-        for direction, k, n in zip("uv", self.orders, self.net_size):
-            if k > n:
-                raise ConfigError(
-                    f"config key 'orders': order {k} in {direction} is larger than net_size {n}")
+        _normalise(self, "", "orders")
+        self._check_tolerance()
+        object.__setattr__(self, "_net_size_given", self.net_size is not None)
+        if self.net_size is None:
+            object.__setattr__(self, "net_size", "auto" if self.has_tolerance else default("net_size"))
+        if self.net_size == "auto":
+            if not self.has_tolerance:
+                raise ConfigError("config key 'net_size': auto needs a tolerance (tolerance or tolerance_rel)")
+        else:
+            _normalise(self, "", "net_size")
+            for direction, k, n in zip("uv", self.orders, self.net_size):
+                if k > n:
+                    raise ConfigError(
+                        f"config key 'orders': order {k} in {direction} is larger than net_size {n}")
         _normalise(self, "", "topology")
-        if self.topology == "sphere" and self.net_size[1] < SPHERE_MIN_V:
+        if self.topology == "sphere" and self.net_size != "auto" and self.net_size[1] < SPHERE_MIN_V:
             raise ConfigError(f"config key 'net_size': a sphere needs at least {SPHERE_MIN_V} control points "
                               f"along v (the first and last collapse to the poles), got {self.net_size[1]}")
         _normalise(self, "", "parametrisation", "strategy")
@@ -413,6 +437,20 @@ class FitConfig:
             raise ConfigError(f"config key 'weight_bounds': {_show(lo)} is too small: at least {MIN_WEIGHT_BOUND:g}")
         _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim")
 
+    def _check_tolerance(self) -> None:
+        """At most one of tolerance and tolerance_rel, each a positive finite number."""
+        for name in ("tolerance", "tolerance_rel"):
+            if getattr(self, name) is not None:
+                _normalise(self, "", name)
+        if self.tolerance is not None and self.tolerance_rel is not None:
+            raise ConfigError("config keys 'tolerance' and 'tolerance_rel' do not go together: give one of them")
+        _normalise(self, "", "tolerance_measure")
+
+    @property
+    def has_tolerance(self) -> bool:
+        """A tolerance is given (in cloud units or relative): the net is searched."""
+        return self.tolerance is not None or self.tolerance_rel is not None
+
     @property
     def degrees(self) -> tuple[int, int]:
         """(p, q) = (k - 1, l - 1)."""
@@ -422,6 +460,8 @@ class FitConfig:
         """Plain JSON-able dict, same shape as the YAML (lists, nested swarm)."""
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):
+            if f.name in TOLERANCE_KEYS and not self.has_tolerance:
+                continue  # a fit without a tolerance writes the config it always wrote
             value = getattr(self, f.name)
             if isinstance(value, SwarmConfig):
                 value = value.to_dict()
@@ -438,6 +478,8 @@ class FitConfig:
         name ``source``.
         """
         d = self.to_dict()
+        if not self._net_size_given:  # still auto if the overrides add a tolerance
+            d.pop("net_size")
         swarm_keys = {f.name for f in dataclasses.fields(SwarmConfig)}
         for key, value in overrides.items():
             if value is None:
@@ -451,6 +493,7 @@ class FitConfig:
         return config_from_dict(d, source=source)
 
 
+TOLERANCE_KEYS = ("tolerance", "tolerance_rel", "tolerance_measure")
 _TOP_KEYS = tuple(f.name for f in dataclasses.fields(FitConfig))
 _SWARM_KEYS = tuple(f.name for f in dataclasses.fields(SwarmConfig))
 
@@ -618,6 +661,8 @@ DOCS_PATH = "docs/configuration.md"
 
 def yaml_text(value: Any) -> str:
     """A default as it is written in YAML: ``[3, 3]``, ``1e-6``, ``true``, ``open``."""
+    if value is None:
+        return "null"
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, tuple):

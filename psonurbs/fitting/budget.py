@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from psonurbs.config import ARRAY_LIMIT, NET_FLOOR, NET_PER_POINT
 from psonurbs.errors import ConfigError, InputError
 
-__all__ = ["ARRAY_LIMIT", "NET_PER_POINT", "NET_FLOOR", "Estimate", "largest_arrays", "check_budget", "max_points"]
+__all__ = ["ARRAY_LIMIT", "NET_PER_POINT", "NET_FLOOR", "Estimate", "largest_arrays", "check_budget", "max_points", "judged_net"]
 
 MESH_BYTES_PER_VERTEX = 130
 
@@ -40,10 +40,16 @@ def _gib(n: int) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
+def judged_net(config) -> tuple[int, int]:
+    """The net a config is judged by: its net_size, or with ``net_size: auto`` the orders
+    (the search's first net; it judges each larger net it tries by this budget itself)."""
+    return tuple(config.orders) if config.net_size == "auto" else tuple(config.net_size)
+
+
 def largest_arrays(config, n_points: int | None = None) -> list[Estimate]:
     """The large arrays a fit with this config allocates; those that depend on the
     cloud only when ``n_points`` is given. Largest first."""
-    nu, nv = config.net_size
+    nu, nv = judged_net(config)
     n = nu * nv
     out = [Estimate(8 * n * n, f"the least-squares solve's {n:,} x {n:,} matrix")]
     if config.refine:
@@ -67,7 +73,7 @@ def max_points(config) -> int:
     k, l = config.orders
     most = ARRAY_LIMIT // (8 * k * l)
     if config.strategy == "full":
-        nu, nv = config.net_size
+        nu, nv = judged_net(config)
         d = int((ARRAY_LIMIT / 16) ** 0.5)
         most = min(most, max((d - 4 * nu * nv - (nu - k) - (nv - l)) // 2, 0))
     return most
@@ -85,7 +91,7 @@ def check_budget(config, n_points: int | None = None) -> None:
                     + (", strategy hybrid" if config.strategy == "full" else "")
                     + (" or refine: false" if config.refine else ""))
     if n_points is not None:
-        nu, nv = config.net_size
+        nu, nv = judged_net(config)
         most = max(NET_FLOOR, NET_PER_POINT * n_points)
         if nu * nv > most:
             raise error(f"config key 'net_size': {nu} x {nv} = {nu * nv:,} control points are too many for "

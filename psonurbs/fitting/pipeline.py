@@ -50,6 +50,7 @@ from psonurbs.fitting.prepare.robust_weights import (
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.fitting.search.paper_space import PaperSpace
 from psonurbs.fitting.search.swarm import SwarmResult, minimise
+from psonurbs.fitting.search.tolerance import fit_to_tolerance
 from psonurbs.fitting.search.validation import held_out_choice, swarm_points_of
 from psonurbs.geometry.net import NetLayout
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -70,6 +71,7 @@ class FitResult:
     curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
     warnings: list[str] = field(default_factory=list)  # failed self-checks (:mod:`psonurbs.fitting.finish.self_checks`)
     trim: Trim | None = None  # the face's loops in the surface's parameter domain (None: untrimmed)
+    distances: np.ndarray | None = None  # (N,) every input point's distance to the (trimmed) surface, cloud units
 
 
 def rms(distances: np.ndarray) -> float:
@@ -145,7 +147,11 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     """Fit one cloud (N, 3) given in its own units; see the module docstring.
 
     ``on_iteration(i, best, mean)`` is called after each swarm iteration (cloud units).
+    With a tolerance the net is searched (:mod:`psonurbs.fitting.search.tolerance`), each
+    net tried fitted by this function.
     """
+    if config.has_tolerance:
+        return fit_to_tolerance(points, config, fit_points, on_iteration)
     points = np.asarray(points, float)
     with threadpool_limits(limits=1):
         cloud = organise(points, tuple(config.orders))
@@ -237,4 +243,5 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
     notes += footprint_notes(face, len(points))
     metrics["outside_trim"] = int(face.points_outside)
     notes += [f"suspect fit: {warning}" for warning in checks.warnings]
-    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings, trim=face.trim)
+    return FitResult(world, topology, metrics, curve, info, notes, warnings=checks.warnings, trim=face.trim,
+                     distances=dist)

@@ -159,8 +159,8 @@ def write_fit_outputs(out_dir: str | os.PathLike, stem: str, document: dict,
     """Write ``STEM.json``, ``STEM.obj``, ``STEM.ply`` and ``STEM_error.csv``.
 
     ``obj_extra`` is appended to the OBJ text (the exact NURBS block of
-    ``--format obj-nurbs``); ``extra_files`` maps a suffix (``".igs"``, ``".3dm"``) to
-    the content of ``STEM + suffix``, written with the others.
+    ``--format obj-nurbs``); ``extra_files`` maps a suffix (``".igs"``, ``".3dm"``,
+    ``"_tolerance.csv"``) to the content of ``STEM + suffix``, written with the others.
 
     All are rendered in memory first; then each is written atomically, the JSON
     last. If anything fails (including Ctrl-C), the files already placed for this
@@ -177,7 +177,7 @@ def write_fit_outputs(out_dir: str | os.PathLike, stem: str, document: dict,
     }
     json_path = paths.pop("json")
     for suffix, data in (extra_files or {}).items():
-        if not suffix.startswith(".") or suffix in (".json", ".obj", ".ply"):
+        if not suffix.startswith((".", "_")) or suffix in (".json", ".obj", ".ply", "_error.csv"):
             raise ValueError(f"extra output suffix {suffix!r} is not allowed")
         paths[suffix] = Path(out_dir) / f"{stem}{suffix}"
         rendered[suffix] = data

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+import numpy as np
 from numpy.linalg import LinAlgError
 
 from psonurbs.errors import PsonurbsError
@@ -132,16 +133,25 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         }
         vertices, triangles = _mesh(result.surface, trim, job.config.tessellation)
         obj_extra, extra_files = ("", {})
+        searched = result.info.get("tolerance")
+        if searched is not None:
+            extra_files["_tolerance.csv"] = _tolerance_csv(searched)
         if formats:
             from psonurbs.geometry.nurbs import NurbsSurface
             from psonurbs.geometry.trim import Trim
 
             exact = NurbsSurface.from_dict(surface)  # what the JSON says, to the last digit
-            obj_extra, extra_files = render_exports(exact, formats, _export_name(path.stem), len(vertices),
-                                                    Trim.from_list(surface.get("trim")))
+            obj_extra, exports = render_exports(exact, formats, _export_name(path.stem), len(vertices),
+                                                Trim.from_list(surface.get("trim")))
+            extra_files.update(exports)
         metrics = result.metrics
         row.topology = result.topology
-        row.net = "x".join(str(n) for n in job.config.net_size)  # distinct control points
+        net = job.config.net_size if searched is None else searched["net_size"]
+        row.net = "x".join(str(n) for n in net)  # distinct control points
+        if searched is not None and not searched["met"]:
+            from psonurbs.fitting.search.tolerance import tolerance_sentence
+
+            row.unmet = tolerance_sentence(searched)
         row.rmse = _number(metrics.get("rmse"))
         row.max_error = _number(metrics.get("max_error"))
         row.rmse_relative = _number(metrics.get("rmse_relative"))
@@ -180,6 +190,19 @@ def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
         row.detail = traceback.format_exc()
     row.seconds = seconds
     return row
+
+
+TOLERANCE_COLUMNS = ["net_u", "net_v", "control_points", "achieved", "met", "seconds"]
+
+
+def _tolerance_csv(searched: dict) -> str:
+    """STEM_tolerance.csv: one row per net the search fitted (``fit.tolerance.searched``),
+    achieved in cloud units, met as 1 or 0, control points nu x nv."""
+    from psonurbs.formats.outputs import render_csv
+
+    rows = [[*step["net_size"], step["net_size"][0] * step["net_size"][1], step["achieved"], step["achieved"] <= searched["value"],
+             step["seconds"]] for step in searched["searched"]]
+    return render_csv(TOLERANCE_COLUMNS, np.array(rows, float).reshape(-1, len(TOLERANCE_COLUMNS)))
 
 
 def _export_name(stem: str) -> str:
@@ -221,7 +244,7 @@ def _finish(outcome: FitOutcome, out_dir: Path, gate: Gate) -> Row:
         row.message = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
         row.detail = traceback.format_exc()
         return row
-    reason = gate.check(outcome.metrics, row.warnings) if outcome.metrics else ""
+    reason = gate.check(outcome.metrics, row.warnings, row.unmet) if outcome.metrics else ""
     if reason:
         row.status = GATE
     elif row.warnings:

@@ -1,5 +1,5 @@
 """The regression gate: bounds on a fit's RMSE (``--max-rmse``, ``--max-rmse-rel``), and
-optionally its self-checks (``--fail-suspect``)."""
+optionally its self-checks (``--fail-suspect``) and its tolerance (``--fail-unmet``)."""
 from __future__ import annotations
 
 import math
@@ -11,18 +11,22 @@ __all__ = ["Gate"]
 @dataclass(frozen=True)
 class Gate:
     """Regression bounds: RMSE in cloud units, and relative to the bounding-box diagonal;
-    with ``fail_suspect``, a fit that failed a self-check (``warnings``) fails the gate too."""
+    with ``fail_suspect``, a fit that failed a self-check (``warnings``) fails the gate too; with
+    ``fail_unmet``, a fit to a tolerance that it does not meet (``unmet``: the reason)."""
 
     max_rmse: float | None = None
     max_rmse_rel: float | None = None
     fail_suspect: bool = False
+    fail_unmet: bool = False
 
-    def check(self, metrics: dict, warnings: list[str] = ()) -> str:
+    def check(self, metrics: dict, warnings: list[str] = (), unmet: str = "") -> str:
         """'' when the fit passes, else the reason (for the row's message)."""
         reasons = []
         if self.fail_suspect and warnings:
             reasons.append(f"suspect fit ({len(warnings)} self-check{'s' if len(warnings) > 1 else ''} failed) "
                            "with --fail-suspect")
+        if self.fail_unmet and unmet:
+            reasons.append(f"{unmet} with --fail-unmet")
         rmse, rel = metrics.get("rmse", math.nan), metrics.get("rmse_relative", math.nan)
         if self.max_rmse is not None and not rmse <= self.max_rmse:
             reasons.append(f"rmse {rmse:.3e} > --max-rmse {self.max_rmse:g}")
@@ -31,4 +35,7 @@ class Gate:
         return "; ".join(reasons)
 
     def as_dict(self) -> dict:
-        return {"max_rmse": self.max_rmse, "max_rmse_rel": self.max_rmse_rel, "fail_suspect": self.fail_suspect}
+        out = {"max_rmse": self.max_rmse, "max_rmse_rel": self.max_rmse_rel, "fail_suspect": self.fail_suspect}
+        if self.fail_unmet:  # only when set: a run without tolerances writes the summary it always wrote
+            out["fail_unmet"] = True
+        return out

@@ -11,7 +11,10 @@ can be found) :func:`plot_result` writes:
 * ``STEM_domain.png``: the parameter domain: the points' foot points, the knot lines and
   the trim loops (outer boundary and holes);
 * ``STEM_basis.png``: the B-spline basis functions of both knot vectors (the paper's
-  Fig. 4), knots marked.
+  Fig. 4), knots marked;
+* ``STEM_tolerance.png``: for a fit to a tolerance (``fit.tolerance`` in the JSON), the
+  held-out error of each net the search tried against its control points, the tolerance
+  and the delivered fit marked.
 
 Each picture has a fixed pixel size (:data:`SIZES`) and is written atomically.
 """
@@ -30,7 +33,7 @@ __all__ = ["SIZES", "plot_result", "find_cloud", "read_curve"]
 DPI = 100
 #: (width, height) in pixels of each picture, by name suffix.
 SIZES = {"curve": (900, 560), "views": (1200, 1000), "distance": (1200, 560), "basis": (900, 700),
-         "domain": (800, 800)}
+         "domain": (800, 800), "tolerance": (900, 560)}
 MAX_DRAWN_POINTS = 6000
 
 
@@ -253,6 +256,30 @@ def plot_basis(surface, title: str, path: Path) -> Path:
     return _save(fig, path)
 
 
+def plot_tolerance(tolerance: dict, title: str, path: Path) -> Path:
+    """Achieved error (``fit.tolerance.searched``) against control points nu x nv, log y."""
+    fig = _figure("tolerance")
+    ax = fig.add_subplot(1, 1, 1)
+    steps = sorted(tolerance["searched"], key=lambda s: s["net_size"][0] * s["net_size"][1])
+    x = [s["net_size"][0] * s["net_size"][1] for s in steps]
+    y = [s["achieved"] for s in steps]
+    ax.plot(x, y, "o-", lw=1.2, label=f"held-out {tolerance['measure']} of each net tried")
+    for s, cx, cy in zip(steps, x, y):
+        ax.annotate(f"{s['net_size'][0]}x{s['net_size'][1]}", (cx, cy), textcoords="offset points",
+                    xytext=(4, 4), fontsize=8)
+    nu, nv = tolerance["net_size"]
+    ax.plot([nu * nv], [tolerance["achieved"]], "s", ms=9, label=f"delivered {nu}x{nv}, over all points")
+    ax.axhline(tolerance["value"], color="k", ls="--", lw=1.0, label=f"tolerance {tolerance['value']:.2e}")
+    ax.set_yscale("log")
+    ax.set_xlabel("control points (nu x nv)")
+    ax.set_ylabel(f"{tolerance['measure']} distance (cloud units)")
+    ax.set_title(f"{title}: tolerance {'met' if tolerance['met'] else 'not met'}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None = None,
                 cloud: str | os.PathLike | None = None) -> tuple[list[Path], list[str]]:
     """Write the pictures of one fit; returns (the PNG paths, notes for the user).
@@ -292,4 +319,7 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
         written.append(plot_distance(surface, points, title, out / f"{stem}_distance.png", trim))
     written.append(plot_domain(surface, trim, points, title, out / f"{stem}_domain.png"))
     written.append(plot_basis(surface, title, out / f"{stem}_basis.png"))
+    tolerance = (document.get("fit") or {}).get("tolerance")
+    if isinstance(tolerance, dict) and tolerance.get("searched"):
+        written.append(plot_tolerance(tolerance, title, out / f"{stem}_tolerance.png"))
     return written, notes

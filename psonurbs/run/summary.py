@@ -78,6 +78,7 @@ class Row:
     message: str = ""
     notes: list[str] = field(default_factory=list)  # the fit's notes (in message too)
     warnings: list[str] = field(default_factory=list)  # the fit's failed self-checks (in notes too)
+    unmet: str = ""  # a fit to a tolerance that does not meet it: why (in notes too)
     detail: str = ""  # traceback of an internal error; never written
 
     def summary(self) -> dict:

@@ -1,0 +1,266 @@
+"""Fit to a tolerance: the smallest net whose fit meets it, searched.
+
+With ``tolerance`` (cloud units) or ``tolerance_rel`` (a fraction of the bounding-box
+diagonal) the net is not given but searched. A share :data:`HOLD_OUT` of the points,
+drawn once from the config's seed, is held out for the whole search; every net tried is
+the full fit of that size (the swarm placing the knots, its classical fallback, the
+finish) on the other points, judged by the tolerance's measure of the distances of the
+held-out points to it (p99, max or rms; a point whose foot lies on the edge of the
+domain, beyond the points the fit saw, is left out of the judgement, :func:`inside`):
+
+    grow     from the smallest net the orders allow (an open or closed direction: its
+             order; a sphere's v at least 3), by x GROWTH and at least +1, in the
+             direction whose knot spans hold the excess over the tolerance unevenly
+             (the error of a ridge sits in a few spans across it), in both when neither
+             does, until a net meets the tolerance
+    bisect   between the last net that failed and the first that met, per direction,
+             so that the delivered net is the smallest meeting one found
+    stop     at the largest net allowed (``net_size`` when given, else the budget of
+             :mod:`psonurbs.fitting.budget`), when no growth of the best net so far
+             gains (:data:`PLATEAU`), or when the error is at what the noise allows
+
+The noise is the local outlier test's scale sigma (:mod:`psonurbs.fitting.prepare.outliers`:
+robust residuals of local quadric fits); Gaussian distances along the normal have a p99
+of about 2.58 sigma, an rms of sigma and a max of about sigma sqrt(2 ln N). The chosen
+net is then fitted as usual on every point, and ``achieved`` is the measure of that
+delivered fit over all points; ``met`` says whether it meets the tolerance. Without a
+net meeting it, the net of the least held-out error is delivered (the smaller on a tie):
+a larger net is never kept when a smaller one is as good.
+
+The classical search is this search with ``--particles 1 --iterations 1``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from psonurbs.config import FIELDS, SPHERE_MIN_V
+from psonurbs.errors import PsonurbsError
+from psonurbs.fitting.budget import check_budget
+from psonurbs.fitting.parameters.topology import layout_for
+from psonurbs.fitting.prepare.organise import organise
+from psonurbs.fitting.prepare.outliers import local_outliers
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
+
+__all__ = ["HOLD_OUT", "GROWTH", "growths", "measure", "noise_allows", "smallest_net", "fit_to_tolerance",
+           "tolerance_sentence"]
+
+HOLD_OUT = 0.2  # share of the points the search's fits do not see (drawn once, from the seed)
+MIN_HELD_OUT = 50  # a smaller cloud is judged on the points it was fitted on
+GROWTH = 1.3  # a net grows by this factor (and at least one control point) per direction
+UNEVEN = 1.5  # a direction is grown alone when its spans' excess is this much more concentrated
+PLATEAU = 0.97  # a grown net gains when its error is below this share of the best so far
+GAUSSIAN_P99 = 2.576  # the 99th percentile of |N(0, 1)|
+EDGE = 1e-9  # a foot parameter this close to 0 or 1 is on the edge of the domain
+NOISE_MARGIN = 1.05  # an error within this factor of what the noise allows cannot fall further
+
+
+def measure(distances: np.ndarray, name: str) -> float:
+    """The tolerance's measure of distances (n,): their 99th percentile, max or rms."""
+    d = np.asarray(distances, float)
+    if name == "p99":
+        return float(np.percentile(d, 99))
+    if name == "max":
+        return float(d.max())
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
+def noise_allows(sigma: float, name: str, n: int) -> float:
+    """The least value of the measure that Gaussian noise of scale ``sigma`` allows on n points."""
+    factor = {"p99": GAUSSIAN_P99, "rms": 1.0}.get(name, math.sqrt(2 * math.log(max(n, 2))))
+    return sigma * factor
+
+
+def smallest_net(topology: str, orders: tuple[int, int]) -> tuple[int, int]:
+    """The smallest net the orders allow: the order in each direction (no inner knots when
+    open, one span per control point when closed), and a sphere's v at least 3."""
+    nu, nv = orders
+    return (nu, max(nv, SPHERE_MIN_V) if topology == "sphere" else nv)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One net the search fitted: its held-out error (cloud units) and where it lies."""
+
+    net_size: tuple[int, int]
+    achieved: float
+    seconds: float
+    uneven: tuple[float, float]  # concentration of the excess over the knot spans along u, v
+
+    def to_dict(self) -> dict:
+        return {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3)}
+
+
+def span_concentration(uv: np.ndarray, excess: np.ndarray, surface: NurbsSurface) -> tuple[float, float]:
+    """Per direction, how unevenly the excess (n,) over the tolerance of the points at
+    parameters uv (n, 2) falls into the surface's knot spans: the largest span's share times
+    the number of spans (1: even; the number of spans: all in one span)."""
+    total = float(excess.sum())
+    out = []
+    for column, knots in enumerate((surface.knots_u, surface.knots_v)):
+        breaks = np.unique(knots)
+        inner = breaks[1:-1]
+        if total <= 0 or len(inner) == 0:
+            out.append(1.0)
+            continue
+        span = np.searchsorted(inner, uv[:, column], side="right")
+        shares = np.bincount(span, excess, minlength=len(inner) + 1) / total
+        out.append(float(shares.max() * len(shares)))
+    return tuple(out)
+
+
+def growths(size: tuple[int, int], uneven: tuple[float, float], largest: tuple[int, int]) -> list[tuple[int, int]]:
+    """The nets grown from ``size``, the most promising first: the direction whose excess
+    is concentrated (:func:`span_concentration`) alone, else both; then the others. Each
+    grown direction by x GROWTH and at least +1, within ``largest``."""
+    u, v = uneven
+    first = (True, False) if u > UNEVEN * v else (False, True) if v > UNEVEN * u else (True, True)
+    order = [first] + [d for d in ((True, True), (True, False), (False, True)) if d != first]
+    out = []
+    for directions in order:
+        new = tuple(min(max(n + 1, math.ceil(n * GROWTH)), most) if grow else n
+                    for n, most, grow in zip(size, largest, directions))
+        if new != size and new not in out:
+            out.append(new)
+    return out
+
+
+def _largest_net(config, n_points: int) -> tuple[int, int]:
+    """The largest net the search may use: the config's net_size when given, else as large
+    as the budget allows for n points (:func:`psonurbs.fitting.budget.check_budget`)."""
+    if config.net_size != "auto":
+        return tuple(config.net_size)
+    most = int(FIELDS["net_size"].most)
+    lo, hi = max(config.orders), most  # the largest square side the budget allows
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        try:
+            check_budget(dataclasses.replace(config, net_size=(mid, mid), tolerance=None, tolerance_rel=None),
+                         n_points)
+            lo = mid
+        except PsonurbsError:
+            hi = mid - 1
+    return (lo, lo)
+
+
+def _noise(points: np.ndarray, orders: tuple[int, int]) -> float:
+    """The local noise scale sigma of the cloud, in its units."""
+    cloud = organise(points, tuple(orders))
+    return float(local_outliers(cloud.points).noise * cloud.frame.diagonal)
+
+
+def _held_distances(surface: NurbsSurface, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Foot parameters (n, 2) and distances (n,) of points (n, 3) on a surface in the same
+    units, computed in a frame of diagonal 1 (the projection's own scale)."""
+    centre = points.mean(axis=0)
+    scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) or 1.0
+    local = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
+                         (surface.control_points - centre) / scale, surface.weights,
+                         surface.closed_u, surface.closed_v)
+    uv, dist = closest_parameters(local, (points - centre) / scale)
+    return uv, dist * scale
+
+
+def inside(uv: np.ndarray, bounded: tuple[bool, bool]) -> np.ndarray:
+    """(n,) bool: the foot parameters uv (n, 2) not on an edge of a bounded direction. A
+    held-out point whose foot is on the edge lies beyond the points the fit saw (its
+    domain ends at theirs): its distance is the gap to their footprint, not the fit's error."""
+    keep = np.ones(len(uv), bool)
+    for column, edge in enumerate(bounded):
+        if edge:
+            keep &= (uv[:, column] > EDGE) & (uv[:, column] < 1 - EDGE)
+    return keep if keep.any() else np.ones(len(uv), bool)
+
+
+def tolerance_sentence(tolerance: dict) -> str:
+    """The summary's words for ``fit.tolerance``: 'tolerance 3.0e-04 (p99) met: 2.7e-04 with
+    9x7 control points', or 'not met: best ... (noise ...)'."""
+    nu, nv = tolerance["net_size"]
+    head = f"tolerance {tolerance['value']:.1e} ({tolerance['measure']})"
+    if tolerance["met"]:
+        return f"{head} met: {tolerance['achieved']:.1e} with {nu}x{nv} control points"
+    return (f"{head} not met: best {tolerance['achieved']:.1e} with {nu}x{nv} control points "
+            f"(noise {tolerance['noise']:.1e})")
+
+
+def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
+    """The fit of the smallest net meeting the config's tolerance (see the module
+    docstring). ``fit(points, config, on_iteration)`` is the fit of one net
+    (:func:`psonurbs.fitting.pipeline.fit_points`); it returns its FitResult, with
+    ``info["tolerance"]`` and the sentence of :func:`tolerance_sentence` first in its notes."""
+    points = np.asarray(points, float)
+    n = len(points)
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    value = float(config.tolerance) if config.tolerance is not None else float(config.tolerance_rel) * diagonal
+    name = config.tolerance_measure
+    rng = np.random.default_rng(config.swarm.seed)
+    held = np.zeros(n, bool)
+    if n * HOLD_OUT >= MIN_HELD_OUT:
+        held[rng.choice(n, int(round(n * HOLD_OUT)), replace=False)] = True
+    train = points[~held] if held.any() else points
+    judged = points[held] if held.any() else points
+    sigma = _noise(points, config.orders)
+    floor = noise_allows(sigma, name, len(judged))
+    topology = config.topology
+    largest = _largest_net(config, len(train))
+    steps: dict[tuple[int, int], Step] = {}
+
+    def one_net(size: tuple[int, int]) -> Step:
+        nonlocal topology
+        start = time.perf_counter()
+        sized = dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology)
+        result = fit(train, sized, on_iteration=on_iteration)
+        topology = result.topology  # auto: chosen once, at the first net
+        uv, dist = _held_distances(result.surface, judged)
+        covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
+        uv, dist = uv[covered], dist[covered]
+        step = Step(size, measure(dist, name), time.perf_counter() - start,
+                    span_concentration(uv, np.maximum(dist - value, 0.0), result.surface))
+        steps[size] = step
+        return step
+
+    # grow from the best net so far until a net meets the tolerance; a grown net that does
+    # not gain leaves the base where it is, and its other growths are tried
+    base = tuple(min(s, m) for s, m in zip(smallest_net(topology, config.orders), largest))
+    meeting, best = None, one_net(base)
+    while best.achieved > value and best.achieved > NOISE_MARGIN * floor:
+        untried = [g for g in growths(best.net_size, best.uneven, largest) if g not in steps]
+        if not untried:
+            break
+        step = one_net(untried[0])
+        if step.achieved <= value:
+            meeting = step.net_size
+        elif step.achieved < PLATEAU * best.achieved:
+            best = step
+        if meeting is not None:
+            break
+    # bisect back between the last failing and the first meeting net
+    if meeting is not None:
+        low, high = best.net_size, meeting
+        while True:
+            middle = tuple((a + b) // 2 for a, b in zip(low, high))
+            if middle == low or middle in steps:
+                break
+            if one_net(middle).achieved <= value:
+                high = middle
+            else:
+                low = middle
+    met = [s for s in steps.values() if s.achieved <= value]
+    pool = met or list(steps.values())
+    chosen = min(pool, key=lambda s: (s.net_size[0] * s.net_size[1], s.achieved) if met else
+                 (s.achieved, s.net_size[0] * s.net_size[1])).net_size
+    final = dataclasses.replace(config, net_size=chosen, tolerance=None, tolerance_rel=None, topology=topology)
+    result = fit(points, final, on_iteration=on_iteration)
+    achieved = measure(result.distances, name)
+    tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
+                 "achieved": achieved, "met": bool(achieved <= value), "net_size": list(chosen),
+                 "noise": sigma, "searched": [s.to_dict() for s in steps.values()]}
+    result.info["tolerance"] = tolerance
+    result.notes.insert(0, tolerance_sentence(tolerance))
+    return result

@@ -1,0 +1,204 @@
+"""Fit to a tolerance: the config's refusals, the net search on known surfaces, its outputs."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import ply_bytes, run
+
+from psonurbs.config import FitConfig, config_from_dict
+from psonurbs.errors import ConfigError
+from psonurbs.fitting.pipeline import fit_points
+from psonurbs.fitting.search.tolerance import growths, measure, noise_allows, smallest_net, span_concentration
+from psonurbs.geometry.nurbs import NurbsSurface
+
+SMALL_SWARM = {"particles": 6, "iterations": 8, "seed": 7}
+
+
+def quarter_cylinder(n: int = 300, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    angle, v = 0.5 * np.pi * rng.random(n), rng.random(n)
+    return np.stack([np.cos(angle), np.sin(angle), 1.5 * v], -1)
+
+
+def bump(n: int = 600, noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    z = 0.6 * np.exp(-2.0 * (x * x + y * y))
+    points = np.stack([x, y, z], -1)
+    return points + rng.normal(0.0, noise * float(np.linalg.norm(points.max(0) - points.min(0))), points.shape)
+
+
+# ---- the config's refusals ------------------------------------------------------------
+
+@pytest.mark.parametrize("text, message", [
+    ("tolerance: 0.1\ntolerance_rel: 0.001\n", "'tolerance' and 'tolerance_rel' do not go together"),
+    ("tolerance: -0.1\n", "config key 'tolerance': expected a positive number"),
+    ("tolerance: 0\n", "config key 'tolerance': expected a positive number"),
+    ("tolerance: .nan\n", "config key 'tolerance': expected a positive number"),
+    ("tolerance: .inf\n", "config key 'tolerance': expected a positive number"),
+    ("tolerance: tight\n", "config key 'tolerance': expected a positive number"),
+    ("tolerance_rel: 0\n", "config key 'tolerance_rel': expected a positive number"),
+    ("tolerance_rel: 2\n", "config key 'tolerance_rel': 2.0 is too large: at most 1"),
+    ("net_size: auto\n", "config key 'net_size': auto needs a tolerance"),
+    ("tolerance: 0.1\ntolerance_measure: p95\n", "config key 'tolerance_measure': expected one of p99, max, rms"),
+])
+def test_a_bad_tolerance_is_exit_2_with_one_line(tmp_path, text, message):
+    (tmp_path / "c.ply").write_bytes(ply_bytes(bump(40)))
+    (tmp_path / "cfg.yaml").write_text(text)
+    result = run("fit", tmp_path / "c.ply", "-c", tmp_path / "cfg.yaml", "-o", tmp_path / "out")
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("psonurbs: error: ") and message in lines[0], lines
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--tolerance", "0.1", "--tolerance-rel", "0.001"], "do not go together"),
+    (["--tolerance", "-1"], "config key 'tolerance': expected a positive number"),
+    (["--tolerance", "nan"], "config key 'tolerance': expected a positive number"),
+    (["--tolerance-rel", "0"], "config key 'tolerance_rel': expected a positive number"),
+    (["--tolerance", "abc"], "'abc' is not a valid float"),
+])
+def test_a_bad_tolerance_option_is_exit_2_with_one_line(tmp_path, options, message):
+    (tmp_path / "c.ply").write_bytes(ply_bytes(bump(40)))
+    result = run("fit", tmp_path / "c.ply", "-o", tmp_path / "out", *options)
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("psonurbs: error: ") and message in lines[0], lines
+
+
+def test_without_a_tolerance_the_config_writes_what_it_always_wrote():
+    plain = FitConfig().to_dict()
+    assert "tolerance" not in plain and "tolerance_measure" not in plain and plain["net_size"] == [5, 5]
+    searched = config_from_dict({"tolerance_rel": 1e-3})
+    assert searched.net_size == "auto" and searched.to_dict()["tolerance_rel"] == 1e-3
+    bounded = config_from_dict({"tolerance": 0.5, "net_size": [9, 7]})
+    assert bounded.net_size == (9, 7)  # the largest net the search may use
+
+
+def test_an_override_adding_a_tolerance_still_searches_the_net():
+    assert FitConfig().with_overrides(tolerance=0.1).net_size == "auto"
+    assert FitConfig(net_size=(8, 8)).with_overrides(tolerance=0.1).net_size == (8, 8)
+    with pytest.raises(ConfigError, match="do not go together"):
+        FitConfig(tolerance=0.1).with_overrides(tolerance_rel=0.01)
+
+
+# ---- the pieces of the search --------------------------------------------------------------
+
+def test_the_measures_and_what_the_noise_allows():
+    d = np.arange(1, 101, dtype=float)
+    assert measure(d, "max") == 100 and measure(d, "p99") == pytest.approx(99.01)
+    assert measure(d, "rms") == pytest.approx(math.sqrt(np.mean(d ** 2)))
+    assert noise_allows(1.0, "p99", 1000) == pytest.approx(2.576)
+    assert noise_allows(1.0, "max", 10_000) == pytest.approx(math.sqrt(2 * math.log(10_000)))
+
+
+def test_the_smallest_nets_and_the_growth():
+    assert smallest_net("open", (4, 4)) == (4, 4) and smallest_net("sphere", (2, 2)) == (2, 3)
+    assert growths((4, 4), (1.0, 1.0), (100, 100))[0] == (6, 6)
+    assert growths((10, 10), (5.0, 1.0), (100, 100))[0] == (13, 10)  # the excess sits in a few u spans
+    assert growths((10, 10), (1.0, 5.0), (100, 100))[0] == (10, 13)
+    assert growths((10, 10), (5.0, 1.0), (10, 100)) == [(10, 13)]  # u at its largest: only v grows
+    assert growths((10, 10), (1.0, 1.0), (10, 10)) == []
+
+
+def test_an_excess_in_one_span_is_concentrated_along_that_direction_only():
+    knots = np.array([0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1], float)
+    surface = NurbsSurface(2, 2, knots, knots, np.zeros((6, 6, 3)), np.ones((6, 6)))
+    uv = np.random.default_rng(0).random((400, 2))
+    excess = np.where(uv[:, 0] < 0.25, 1.0, 0.0)  # a ridge at small u, all along v
+    along_u, along_v = span_concentration(uv, excess, surface)
+    assert along_u == pytest.approx(4.0) and along_v < 1.5
+
+
+# ---- the search, end to end ----------------------------------------------------------------
+
+def test_an_exact_surface_meets_1e6_at_its_exact_net_and_stops_there():
+    # rms: the fitter reaches the exact weights to about 1e-6, its p99 at this net is a few times that
+    config = config_from_dict({"orders": [3, 2], "tolerance_rel": 1e-6, "tolerance_measure": "rms",
+                               "swarm": {"particles": 12, "iterations": 25}})
+    result = fit_points(quarter_cylinder(), config)
+    tolerance = result.info["tolerance"]
+    assert tolerance["met"] and tolerance["net_size"] == [3, 2]
+    assert [s["net_size"] for s in tolerance["searched"]] == [[3, 2]]
+    assert tolerance["achieved"] <= 1e-6 * tolerance["value"] / tolerance["relative"]
+
+
+def test_the_search_delivers_the_smallest_meeting_net_it_found():
+    config = config_from_dict({"orders": [4, 4], "tolerance_rel": 1e-3, "swarm": {"particles": 1, "iterations": 1}})
+    tolerance = fit_points(bump(800), config).info["tolerance"]
+    searched = tolerance["searched"]
+    size = {tuple(s["net_size"]): s["achieved"] for s in searched}
+    assert tolerance["met"] and len(size) == len(searched) >= 2  # no net fitted twice
+    chosen = tuple(tolerance["net_size"])
+    assert size[chosen] <= tolerance["value"]
+    for net, achieved in size.items():  # every smaller net it tried fails, every larger one is not kept
+        if net[0] * net[1] < chosen[0] * chosen[1]:
+            assert achieved > tolerance["value"], net
+    growth = [s["achieved"] for s in searched if s["achieved"] > tolerance["value"]]
+    assert growth == sorted(growth, reverse=True)  # the failing nets, larger each time, come closer each time
+    assert tolerance["achieved"] <= tolerance["value"]  # over all points, on the delivered surface
+
+
+def test_a_tolerance_below_the_noise_is_not_met_and_says_so(tmp_path):
+    (tmp_path / "noisy.ply").write_bytes(ply_bytes(bump(600, noise=0.01)))
+    (tmp_path / "cfg.yaml").write_text(f"orders: [4, 4]\ntolerance_rel: 1.0e-4\nswarm: {json.dumps(SMALL_SWARM)}\n")
+    args = ["fit", tmp_path / "noisy.ply", "-c", tmp_path / "cfg.yaml", "-q"]
+    result = run(*args, "-o", tmp_path / "out")
+    assert result.exit_code == 0
+    document = json.loads((tmp_path / "out" / "noisy.json").read_text())
+    tolerance = document["fit"]["tolerance"]
+    assert not tolerance["met"] and tolerance["achieved"] > tolerance["value"]
+    assert tolerance["achieved"] <= 3 * noise_allows(tolerance["noise"], "p99", 600)  # at the noise, not beyond
+    nu, nv = tolerance["net_size"]
+    line = (f"psonurbs: warning: {tmp_path / 'noisy.ply'}: tolerance {tolerance['value']:.1e} (p99) not met: "
+            f"best {tolerance['achieved']:.1e} with {nu}x{nv} control points (noise {tolerance['noise']:.1e})")
+    assert result.stderr.strip().splitlines() == [line]
+    gated = run(*args, "-o", tmp_path / "gated", "--fail-unmet")
+    assert gated.exit_code == 3
+    summary = json.loads((tmp_path / "gated" / "summary.json").read_text())
+    assert summary["clouds"][0]["status"] == "gate-exceeded" and "with --fail-unmet" in summary["clouds"][0]["message"]
+
+
+def test_the_outputs_of_a_search(tmp_path):
+    (tmp_path / "bump.ply").write_bytes(ply_bytes(bump(500)))
+    (tmp_path / "cfg.yaml").write_text(f"orders: [4, 4]\nswarm: {json.dumps(SMALL_SWARM)}\n")
+    result = run("fit", tmp_path / "bump.ply", "-c", tmp_path / "cfg.yaml", "-o", tmp_path / "out", "-q",
+                 "--tolerance", "0.004", "--fail-unmet")
+    assert result.exit_code == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "bump.json").read_text())
+    tolerance = document["fit"]["tolerance"]
+    assert list(tolerance) == ["value", "relative", "measure", "achieved", "met", "net_size", "noise", "searched"]
+    diagonal = document["metrics"]["bbox_diagonal"]
+    assert tolerance["value"] == 0.004 and tolerance["relative"] == pytest.approx(0.004 / diagonal)
+    assert tolerance["measure"] == "p99" and tolerance["met"] and tolerance["achieved"] <= 0.004
+    assert document["config"]["net_size"] == "auto" and document["config"]["tolerance"] == 0.004
+    nu, nv = tolerance["net_size"]
+    assert len(document["surface"]["knots_u"]) == nu + 4 and len(document["surface"]["knots_v"]) == nv + 4
+    with open(tmp_path / "out" / "bump_tolerance.csv") as file:
+        rows = list(csv.DictReader(file))
+    assert list(rows[0]) == ["net_u", "net_v", "control_points", "achieved", "met", "seconds"]
+    assert [[int(r["net_u"]), int(r["net_v"])] for r in rows] == [s["net_size"] for s in tolerance["searched"]]
+    assert all(int(r["control_points"]) == int(r["net_u"]) * int(r["net_v"]) for r in rows)
+    assert [int(r["met"]) for r in rows] == [int(s["achieved"] <= 0.004) for s in tolerance["searched"]]
+    sentence = f"tolerance 4.0e-03 (p99) met: {tolerance['achieved']:.1e} with {nu}x{nv} control points"
+    assert sentence in result.stdout and f"net {nu}x{nv} (open)" in result.stdout
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["clouds"][0]["net"] == f"{nu}x{nv}" and summary["gate"]["fail_unmet"] is True
+
+
+def test_plot_draws_the_search_of_a_fit_to_a_tolerance(tmp_path):
+    pytest.importorskip("matplotlib")
+    from psonurbs.run.plots import SIZES, plot_tolerance
+
+    tolerance = {"value": 1e-3, "measure": "p99", "achieved": 8e-4, "met": True, "net_size": [6, 5],
+                 "searched": [{"net_size": [4, 4], "achieved": 5e-3, "seconds": 1.0},
+                              {"net_size": [6, 5], "achieved": 9e-4, "seconds": 1.0}]}
+    path = plot_tolerance(tolerance, "bump", tmp_path / "bump_tolerance.png")
+    from PIL import Image
+
+    assert Image.open(path).size == SIZES["tolerance"]
