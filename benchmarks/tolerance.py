@@ -45,6 +45,7 @@ import time
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -125,21 +126,29 @@ def surfit(points: np.ndarray, axis: int, s_rel: float) -> SplineTry:
 
 
 def fitpack_count(points: np.ndarray, axis: int, tolerance: float) -> FitpackCount:
-    """s searched. By decades down from DECADES[0] until a fit meets the tolerance, then
-    bisection on log s between that decade and the one above (a warned or failed fit counts
-    as s too small). The count falls with s in plateaus, and within one the error grows with
-    s, so p99 is not monotone in s: from the fit found, the boundary to the next plateau of
+    """FITPACK's fewest coefficients at the tolerance, s searched (see fewest_coefficients)."""
+    best, tries = fewest_coefficients(lambda s_rel: surfit(points, axis, s_rel), tolerance)
+    return FitpackCount(tolerance, axis, best, tries)
+
+
+def fewest_coefficients(fit: Callable[[float], SplineTry], tolerance: float):
+    """The fit of fewest coefficients that meets the tolerance, and every fit tried.
+
+    By decades of s down from DECADES[0] until a fit meets the tolerance, then bisection on
+    log s between that decade and the one above (a warned or failed fit counts as s too
+    small). The count falls with s in plateaus, and within one the error grows with s, so
+    the error is not monotone in s: from the fit found, the boundary to the next plateau of
     fewer coefficients is bisected on log s and that plateau tried at its smallest s, until
-    one misses. The least coefficients of any fit that met the tolerance."""
+    one misses. fit: s_rel -> SplineTry."""
     tries: list[SplineTry] = []
 
-    def fit(exponent: float) -> SplineTry:
-        tries.append(surfit(points, axis, 10.0 ** exponent))
+    def at(exponent: float) -> SplineTry:
+        tries.append(fit(float(10.0 ** exponent)))
         return tries[-1]
 
     above, below = None, None  # log10 s_rel: misses the tolerance / meets it (or s too small)
     for exponent in np.arange(np.log10(DECADES[0]), np.log10(DECADES[1]) - 0.5, -1.0):
-        found = fit(exponent)
+        found = at(exponent)
         if found.meets(tolerance) or found.warned:
             below = exponent
             break
@@ -147,7 +156,7 @@ def fitpack_count(points: np.ndarray, axis: int, tolerance: float) -> FitpackCou
     if below is not None and above is not None:
         for _ in range(BISECTIONS):
             middle = 0.5 * (above + below)
-            found = fit(middle)
+            found = at(middle)
             if found.meets(tolerance) or found.warned:
                 below = middle
             else:
@@ -155,23 +164,23 @@ def fitpack_count(points: np.ndarray, axis: int, tolerance: float) -> FitpackCou
     met = [t for t in tries if t.meets(tolerance)]
     best = min(met, key=lambda t: (t.coefficients, t.achieved)) if met else None
     while best is not None:
-        fewer = next_plateau(best, fit)
+        fewer = next_plateau(best, at)
         if fewer is None or not fewer.meets(tolerance) or fewer.coefficients >= best.coefficients:
             break
         best = fewer
-    return FitpackCount(tolerance, axis, best, tuple(tries))
+    return best, tuple(tries)
 
 
-def next_plateau(start: SplineTry, fit) -> SplineTry | None:
-    """The fit at the smallest s (to 2^-BISECTIONS of a decade) whose count is below
-    start's, or None when even DECADES[0] has as many. fit: log10 s_rel -> SplineTry."""
+def next_plateau(start: SplineTry, at: Callable[[float], SplineTry]) -> SplineTry | None:
+    """The fit at the smallest s (to 2^-BISECTIONS of the range in log s) whose count is below
+    start's, or None when even DECADES[0] has as many. at: log10 s_rel -> SplineTry."""
     low, high = np.log10(start.s_rel), np.log10(DECADES[0])
-    upper = fit(high)
+    upper = at(high)
     if upper.warned or upper.coefficients >= start.coefficients:
         return None
     for _ in range(BISECTIONS):
         middle = 0.5 * (low + high)
-        found = fit(middle)
+        found = at(middle)
         if found.warned or found.coefficients >= start.coefficients:
             low = middle
         else:
