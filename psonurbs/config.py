@@ -256,14 +256,14 @@ def _learning_factor(key: str, towards: str) -> Field:
 FIELDS: dict[str, Field] = {f.key: f for f in (
     Field("orders", INTEGER, (3, 3), "orders k, l (degree + 1) along u, v", pair=True, least=2,
           most=10, why="degree 9 at most", note="(order = degree + 1)", also="each <= its `net_size`"),
-    Field("net_size", INTEGER, (5, 5), "control points along u, v; `auto` (the default with a tolerance): "
-          "searched, with a tolerance given: the largest net the search may use", pair=True, least=1, most=1000,
+    Field("net_size", INTEGER, (5, 5), "control points along u, v; with a tolerance, the largest net "
+          "its search may use (`auto`, the default then: no limit)", pair=True, least=1, most=1000,
           why="control points along one direction",
           also=f"at least {SPHERE_MIN_V} along v for a sphere; `auto` only with a tolerance"),
     Field("topology", CHOICE, "open", "shape of the parameter domain (closed directions are periodic); "
           "auto: chosen from the cloud", choices=TOPOLOGIES, option="--topology"),
-    Field("strategy", CHOICE, "hybrid", "hybrid: the swarm searches knots and weights, least squares gives "
-          "the control points; full: the paper's search space (Eq. 10)", choices=STRATEGIES,
+    Field("strategy", CHOICE, "hybrid", "hybrid: the swarm searches knots and weights, least squares the "
+          "control points; full: the paper's space (Eq. 10)", choices=STRATEGIES,
           option="--strategy"),
     Field("swarm.particles", INTEGER, 40, "swarm size", least=1, most=10_000, why="particles of the swarm",
           also=f"particles x iterations <= {MAX_EVALUATIONS:,}", option="--particles"),
@@ -276,14 +276,14 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
     _learning_factor("swarm.c2", "the particle's own"),
     Field("swarm.seed", INTEGER, 7, "seed of the random generator; the same seed gives the same fit",
           least=0, most=2**64 - 1, why="a 64-bit seed", option="--seed"),
-    Field("smoothing", NUMBER, 1e-6, "relative weight of the control-net smoothness term for the classical "
-          "start; the swarm then chooses it by leave-one-out error", least=0, most=1e6,
+    Field("smoothing", NUMBER, 1e-6, "weight of the net's smoothness term at the classical start; the "
+          "swarm then picks it by leave-one-out error", least=0, most=1e6,
           why="relative weight of the smoothness term"),
-    Field("swarm_points", INTEGER, 1500, "at most this many points (a subsample) are seen by the swarm; "
-          "the final solve sees all", least=MIN_SWARM_POINTS, most=100_000,
+    Field("swarm_points", INTEGER, 1500, "the swarm sees at most this many points (a subsample); the final "
+          "solve sees all", least=MIN_SWARM_POINTS, most=100_000,
           why="points the swarm's fitness sees"),
-    Field("polish_iterations", INTEGER, 100, "rounds of parameter correction after the swarm (twice: before "
-          "and after the smoothing is chosen again)", least=0, most=10_000,
+    Field("polish_iterations", INTEGER, 100, "rounds of parameter correction, before and after the smoothing is "
+          "picked again", least=0, most=10_000,
           why="rounds of parameter correction"),
     Field("tessellation", INTEGER, (101, 101), "mesh resolution along u, v", pair=True, least=2,
           most=10_000, why="mesh vertices along one direction",
@@ -292,28 +292,27 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
           least_open=True, most=1e6, why="NURBS weights", also=f"{_number(MIN_WEIGHT_BOUND)} <= lo <= 1 <= hi"),
     Field("min_knot_gap", NUMBER, 0.2, "smallest gap between knots, as a fraction of the uniform spacing",
           least=0, least_open=True, below=1),
-    Field("cross_validation", SWITCH, True, "judge the swarm's particles by their leave-one-out error (each "
-          "point against the fit that did not see it) instead of the plain fit error"),
-    Field("refine", SWITCH, True, "after the polish, refine control points, weights and parameters jointly "
-          "(Levenberg-Marquardt), then polish again; kept only when the fit gains by it"),
-    Field("refine_iterations", INTEGER, 12, "at most this many Levenberg-Marquardt steps of that refinement "
-          "(it stops sooner once a step gains almost nothing)", least=0, most=10_000,
+    Field("cross_validation", SWITCH, True, "judge particles by their leave-one-out error, not the plain "
+          "fit error"),
+    Field("refine", SWITCH, True, "refine control points, weights and parameters jointly "
+          "(Levenberg-Marquardt) after the polish; kept only when the fit gains"),
+    Field("refine_iterations", INTEGER, 12, "at most this many steps of that refinement (fewer once a step gains "
+          "almost nothing)", least=0, most=10_000,
           why="Levenberg-Marquardt steps of the joint refinement"),
-    Field("robust", SWITCH, True, "leave out gross outliers (far off the surface their neighbours describe) "
-          "and weigh every solve by a robust loss; the metrics still count every point"),
+    Field("robust", SWITCH, True, "leave out gross outliers and weigh every solve by a robust loss; "
+          "the metrics count every point"),
     Field("parametrisation", CHOICE, "auto", "first parameters of an open patch: plane (a projection), "
-          "intrinsic (the cloud's own graph laid flat) or auto (the plane where the cloud is a height "
-          "field over it)", choices=PARAMETRISATIONS, option="--parametrisation"),
+          "intrinsic (the cloud's graph laid flat), auto (the plane where it is a height field)", choices=PARAMETRISATIONS, option="--parametrisation"),
     Field("trim", AUTO_SWITCH, "auto", "trim an open surface to the data's footprint: auto where the "
           "footprint leaves a gap or a hole, true always, false never"),
-    Field("tolerance", NUMBER, None, "fit to this tolerance (cloud units): the smallest net whose "
-          "`tolerance_measure` of the distances meets it is searched", least=0, least_open=True,
+    Field("tolerance", NUMBER, None, "fit to this tolerance (cloud units): the smallest net meeting it "
+          "is searched", least=0, least_open=True,
           also="`tolerance` or `tolerance_rel`, not both", option="--tolerance"),
     Field("tolerance_rel", NUMBER, None, "the tolerance as a fraction of the cloud's bounding-box diagonal",
           least=0, least_open=True, most=1, why="a fraction of the bounding-box diagonal",
           also="`tolerance` or `tolerance_rel`, not both", option="--tolerance-rel"),
-    Field("tolerance_measure", CHOICE, "p99", "what of the point-to-surface distances the tolerance bounds: "
-          "their 99th percentile, their max or their rms", choices=TOLERANCE_MEASURES),
+    Field("tolerance_measure", CHOICE, "p99", "what the tolerance bounds: the point distances' 99th "
+          "percentile, max or rms", choices=TOLERANCE_MEASURES),
 )}
 ALIASES = {"remove_outliers": "robust"}  # another name: the key it stands for
 

@@ -243,3 +243,8 @@ def test_the_private_check_sees_an_import_and_a_read(tmp_path, monkeypatch):
 def test_no_module_uses_a_private_name_of_another():
     found = [use for path, module in project_files() for use in private_uses(path, module)]
     assert not found, "private names used across modules:\n" + "\n".join(found)
+
+
+def test_the_readme_is_a_guide_not_a_notebook():
+    """The README is the user's guide: at most 25,000 bytes; results and history live elsewhere."""
+    assert (REPO / "README.md").stat().st_size <= 25_000
