@@ -50,6 +50,7 @@ from typing import Callable
 import numpy as np
 import yaml
 from cases import CASES, write  # benchmarks/cases.py, beside this script
+from run import cell, outside_score  # benchmarks/run.py, beside this script
 from scipy.interpolate import SmoothBivariateSpline
 from score import read_points  # benchmarks/score.py, beside this script
 
@@ -218,14 +219,6 @@ def tolerance_config(case_yaml: str, tolerance_rel: float) -> str:
     return yaml.safe_dump(config, sort_keys=False)
 
 
-def scored(scorer: Path, cloud: Path, outdir: Path, truth: Path) -> dict:
-    """``python SCORER CLOUD OUTDIR --gt TRUTH``: its last line of output, as JSON."""
-    done = subprocess.run([sys.executable, str(scorer), str(cloud), str(outdir), "--gt", str(truth)],
-                          capture_output=True, text=True)
-    lines = done.stdout.strip().splitlines()
-    return json.loads(lines[-1]) if lines else {"error": done.stderr.strip()[-200:]}
-
-
 @dataclass(frozen=True)
 class Row:
     case: str
@@ -276,19 +269,11 @@ def fit_case(exe: str, case: str, variant: str, clouds: Path, out: Path, scorer:
     diagonal = float(np.linalg.norm(points.max(0) - points.min(0)))
     fitted = json.loads(document.read_text())["fit"].get("tolerance") or {}
     net = tuple(fitted["net_size"]) if fitted.get("net_size") else None
-    figures = scored(scorer, cloud, outdir, clouds / f"{case}.gt.npz")
+    figures = outside_score(scorer)(cloud, outdir, clouds / f"{case}.gt.npz")
     return Row(case, variant, tolerance, seconds, control_points=None if net is None else net[0] * net[1],
                net=net, claimed=claimed_relative(fitted, diagonal), claimed_met=fitted.get("met"),
                p99=figures.get("p99"), truth_max=figures.get("truth_max"),
                error="" if fitted else "no fit.tolerance in the JSON")
-
-
-def cell(value, digits: int = 3) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, bool):
-        return "yes" if value else "NO"
-    return f"{value:.{digits}g}" if isinstance(value, float) else str(value)
 
 
 def fits_table(rows: list[Row]) -> list[str]:
