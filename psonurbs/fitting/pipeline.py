@@ -79,8 +79,10 @@ def rms(distances: np.ndarray) -> float:
 
 
 def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.ndarray, config,
-               rng: np.random.Generator, progress) -> tuple[NurbsSurface, SwarmResult, dict]:
-    """Swarm over knots, weights and smoothing (least-squares control points), the best
+               rng: np.random.Generator, progress, swarm_weights: bool = True
+               ) -> tuple[NurbsSurface, SwarmResult, dict]:
+    """Swarm over knots, weights (unless ``swarm_weights`` is False: unit weights in the
+    swarm, the refinement alone frees them) and smoothing (least-squares control points), the best
     kept only if it predicts the points it never saw better than the classical fit
     (:mod:`psonurbs.fitting.search.validation`), then the polish and the optional joint
     refinement; with ``robust``, every solve weighted by the robust loss
@@ -93,8 +95,9 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
     points, uv, seen, w = cloud.points[keep], par.uv[keep], kept_sample(sample, keep), w[keep]
     c = w if config.robust else None  # the point weights of every solve
     swarms = swarm_points_of(seen, len(points))  # the sample, some held out for the validation in a small cloud
+    bounds = tuple(config.weight_bounds) if swarm_weights else (1.0, 1.0)  # equal bounds: the weights stay 1
     search = KnotWeightSpace(layout, solver, points[swarms], uv[swarms], config.cross_validation,
-                              config.min_knot_gap, tuple(config.weight_bounds), None if c is None else c[swarms])
+                              config.min_knot_gap, bounds, None if c is None else c[swarms])
     swarm = minimise(search.fitness, search.initial_swarm(config.swarm.particles, rng), search.feasible(),
                      config.swarm.iterations, config.swarm.inertia, config.swarm.c1, config.swarm.c2,
                      rng, progress)
@@ -142,13 +145,14 @@ def run_full(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np.n
     return search.surface(swarm.best_position), swarm, info
 
 
-def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, float], None] | None = None
-               ) -> FitResult:
+def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, float], None] | None = None,
+               swarm_weights: bool = True) -> FitResult:
     """Fit one cloud (N, 3) given in its own units; see the module docstring.
 
     ``on_iteration(i, best, mean)`` is called after each swarm iteration (cloud units).
     With a tolerance the net is searched (:mod:`psonurbs.fitting.search.tolerance`), each
-    net tried fitted by this function.
+    net tried fitted by this function with ``swarm_weights`` False: the swarm of the
+    hybrid strategy then searches knots and smoothing only, the weights left to the refinement.
     """
     if config.has_tolerance:
         return fit_to_tolerance(points, config, fit_points, on_iteration)
@@ -180,8 +184,9 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         par = Parametrisation(parameters_for_all(fitted.points, trusted, par.uv), par.info)
         layout = layout_for(topology, config.net_size, config.degrees)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
-        run = run_full if config.strategy == "full" else run_hybrid
-        surface, swarm, info = run(fitted, layout, par, fitted_sample, config, rng, progress)
+        surface, swarm, info = run_full(fitted, layout, par, fitted_sample, config, rng, progress) \
+            if config.strategy == "full" else \
+            run_hybrid(fitted, layout, par, fitted_sample, config, rng, progress, swarm_weights)
         if big is not None:
             done = finished(layout, surface, cloud.points, info["smoothing"], config.robust,
                             info["refined"] and any(layout.bounded), cloud.neighbourhoods)

@@ -3,31 +3,46 @@
 With ``tolerance`` (cloud units) or ``tolerance_rel`` (a fraction of the bounding-box
 diagonal) the net is not given but searched. A share :data:`HOLD_OUT` of the points,
 drawn once from the config's seed, is held out for the whole search; every net tried is
-the full fit of that size (the swarm placing the knots, its classical fallback, the
-finish) on the other points, judged by the tolerance's measure of the distances of the
-held-out points to it (p99, max or rms; a point whose foot lies on the edge of the
-domain, beyond the points the fit saw, is left out of the judgement, :func:`inside`):
+a full fit of that size on the other points, judged by the tolerance's measure of the
+distances of the held-out points to it (p99, max or rms; a point whose foot lies on the
+edge of the domain, beyond the points the fit saw, is left out of the judgement,
+:func:`inside`). Two searches, each over nets of one kind of fit (:class:`NetSearch`):
 
-    grow     from the smallest net the orders allow (an open or closed direction: its
-             order; a sphere's v at least 3), by x GROWTH and at least +1, in the
-             direction whose knot spans hold the excess over the tolerance unevenly
-             (the error of a ridge sits in a few spans across it), in both when neither
-             does, until a net meets the tolerance
-    bisect   between the last net that failed and the first that met, per direction,
-             so that the delivered net is the smallest meeting one found
-    stop     at the largest net allowed (``net_size`` when given, else the budget of
-             :mod:`psonurbs.fitting.budget`), when no growth of the best net so far
-             gains (:data:`PLATEAU`), or when the error is at what the noise allows
+    uniform  the classical fit (uniform knots, one particle): from the smallest net the
+             orders allow (an open or closed direction: its order; a sphere's v at
+             least 3), *grow* by x GROWTH and at least +1, in the direction whose knot
+             spans hold the excess over the tolerance unevenly (the error of a ridge
+             sits in a few spans across it), in both when neither does, until a net
+             meets the tolerance; *bisect* back between the last net that failed and
+             the first that met; *shrink* one direction at a time (the larger first),
+             bisecting the fewest control points along it that still meet (growing
+             both directions overshoots the one that needed less)
+    swarm    with a swarm configured: from the classical net, shrink again with the
+             swarm placing the knots at every size tried. Below the classical net is
+             where the places of the knots decide; the classical net stays the
+             fallback, so the swarm never costs control points
+
+and each stops at the largest net allowed (``net_size`` when given, else the budget of
+:mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
+(:data:`PLATEAU`), or when the error is at what the noise allows. The swarm of these
+fits searches the knots and the smoothing, not the weights: the weights' one dimension
+per control point would cost the knot search its precision (the public step_bump,
+bicubic, tolerance 3e-4 of the diagonal: the p99 of fits at 10 x 10, 11 x 11 and
+12 x 12 is 0.87, 1.00, 1.23 times it with the weights searched, 0.95, 0.92, 0.50
+without: the larger net is worse with them). The refinement still frees the weights
+where they pay (a conic).
 
 The noise is the local outlier test's scale sigma (:mod:`psonurbs.fitting.prepare.outliers`:
 robust residuals of local quadric fits); Gaussian distances along the normal have a p99
 of about 2.58 sigma, an rms of sigma and a max of about sigma sqrt(2 ln N). The chosen
-net is then fitted as usual on every point, and ``achieved`` is the measure of that
-delivered fit over all points; ``met`` says whether it meets the tolerance. Without a
-net meeting it, the net of the least held-out error is delivered (the smaller on a tie):
-a larger net is never kept when a smaller one is as good.
+net is then fitted as usual on every point (a swarm's net that misses there gives way to
+the classical one), and ``achieved`` is the measure of that delivered fit over all
+points; ``met`` says whether it meets the tolerance. Without a net meeting it, the net
+of the least held-out error is delivered (the smaller on a tie): a larger net is never
+kept when a smaller one is as good.
 
-The classical search is this search with ``--particles 1 --iterations 1``.
+The classical search is this search with ``--particles 1 --iterations 1``: the uniform
+search alone.
 """
 from __future__ import annotations
 
@@ -92,9 +107,11 @@ class Step:
     achieved: float
     seconds: float
     uneven: tuple[float, float]  # concentration of the excess over the knot spans along u, v
+    knots: str = "uniform"  # uniform: the classical fit; swarm: the knots placed by the swarm
 
     def to_dict(self) -> dict:
-        return {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3)}
+        return {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3),
+                "knots": self.knots}
 
 
 def span_concentration(uv: np.ndarray, excess: np.ndarray, surface: NurbsSurface) -> tuple[float, float]:
@@ -189,6 +206,87 @@ def tolerance_sentence(tolerance: dict) -> str:
             f"(noise {tolerance['noise']:.1e})")
 
 
+class NetSearch:
+    """The nets one kind of fit tried (:class:`Step` by size): grown from ``base`` until
+    one meets the tolerance ``value``, bisected back, and shrunk per direction (the module
+    docstring). ``evaluate(size)`` fits a net and judges it; ``floor`` is the least error
+    the noise allows (the growth stops there)."""
+
+    def __init__(self, evaluate: Callable[[tuple[int, int]], Step], base: tuple[int, int],
+                 largest: tuple[int, int], value: float, floor: float):
+        self.evaluate, self.base, self.largest = evaluate, base, largest
+        self.value, self.floor = value, floor
+        self.steps: dict[tuple[int, int], Step] = {}
+
+    def step(self, size: tuple[int, int]) -> Step:
+        if size not in self.steps:
+            self.steps[size] = self.evaluate(size)
+        return self.steps[size]
+
+    def meets(self, size: tuple[int, int]) -> bool:
+        return self.step(size).achieved <= self.value
+
+    def grown(self) -> tuple[int, int] | None:
+        """Grow, then bisect: the smallest meeting net on the way, or None (none met)."""
+        best, meeting = self.step(self.base), None
+        while best.achieved > self.value and best.achieved > self.floor:
+            untried = [g for g in growths(best.net_size, best.uneven, self.largest) if g not in self.steps]
+            if not untried:
+                break
+            step = self.step(untried[0])
+            if step.achieved <= self.value:
+                meeting = step.net_size
+                break
+            if step.achieved < PLATEAU * best.achieved:
+                best = step
+        if best.achieved <= self.value:
+            return best.net_size
+        if meeting is None:
+            return None
+        low, high = best.net_size, meeting
+        while True:
+            middle = tuple((a + b) // 2 for a, b in zip(low, high))
+            if middle == low or middle in self.steps:
+                return high
+            if self.meets(middle):
+                high = middle
+            else:
+                low = middle
+
+    def shrunk(self, size: tuple[int, int]) -> tuple[int, int]:
+        """From a net that meets, the fewest control points along each direction in turn
+        (the larger first) that still meet with the other as it is then."""
+        for direction in (0, 1) if size[0] >= size[1] else (1, 0):
+            size = self.shrink(size, direction)
+        return size
+
+    def shrink(self, size: tuple[int, int], direction: int) -> tuple[int, int]:
+        """Bisect the fewest control points along ``direction`` that meet with the other
+        direction as in ``size`` (taken to meet). Errors are taken to fall as a net grows
+        in either direction, so a failing net bounds every net it holds."""
+        other = 1 - direction
+        fails = [s[direction] for s, step in self.steps.items()
+                 if step.achieved > self.value and s[other] >= size[other] and s[direction] < size[direction]]
+        low, high = max(fails, default=self.base[direction] - 1), size[direction]
+        while high - low > 1:
+            middle = (low + high) // 2
+            if self.meets(tuple(middle if k == direction else size[k] for k in (0, 1))):
+                high = middle
+            else:
+                low = middle
+        return tuple(high if k == direction else size[k] for k in (0, 1))
+
+
+def chosen_step(steps: list[Step], value: float) -> Step:
+    """The fewest control points among the steps that meet ``value`` (the smaller error on
+    a tie); without one, the least error (the smaller net on a tie): a larger net is never
+    kept when a smaller one is as good."""
+    met = [s for s in steps if s.achieved <= value]
+    if met:
+        return min(met, key=lambda s: (s.net_size[0] * s.net_size[1], s.achieved))
+    return min(steps, key=lambda s: (s.achieved, s.net_size[0] * s.net_size[1]))
+
+
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
     """The fit of the smallest net meeting the config's tolerance (see the module
     docstring). ``fit(points, config, on_iteration)`` is the fit of one net
@@ -209,58 +307,48 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     floor = noise_allows(sigma, name, len(judged))
     topology = config.topology
     largest = _largest_net(config, len(train))
-    steps: dict[tuple[int, int], Step] = {}
 
-    def one_net(size: tuple[int, int]) -> Step:
+    swarm = config.strategy == "hybrid" and config.swarm.particles * config.swarm.iterations > 1
+
+    def sized(size: tuple[int, int], knots: str):
+        swarm_config = config.swarm if knots == "swarm" else dataclasses.replace(config.swarm, particles=1,
+                                                                                 iterations=1)
+        return dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology,
+                                   swarm=swarm_config)
+
+    def one_net(size: tuple[int, int], knots: str) -> Step:
         nonlocal topology
         start = time.perf_counter()
-        sized = dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology)
-        result = fit(train, sized, on_iteration=on_iteration)
+        result = fit(train, sized(size, knots), on_iteration=on_iteration, swarm_weights=False)
         topology = result.topology  # auto: chosen once, at the first net
         uv, dist = _held_distances(result.surface, judged)
         covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
         uv, dist = uv[covered], dist[covered]
-        step = Step(size, measure(dist, name), time.perf_counter() - start,
-                    span_concentration(uv, np.maximum(dist - value, 0.0), result.surface))
-        steps[size] = step
-        return step
+        return Step(size, measure(dist, name), time.perf_counter() - start,
+                    span_concentration(uv, np.maximum(dist - value, 0.0), result.surface), knots)
 
-    # grow from the best net so far until a net meets the tolerance; a grown net that does
-    # not gain leaves the base where it is, and its other growths are tried
     base = tuple(min(s, m) for s, m in zip(smallest_net(topology, config.orders), largest))
-    meeting, best = None, one_net(base)
-    while best.achieved > value and best.achieved > NOISE_MARGIN * floor:
-        untried = [g for g in growths(best.net_size, best.uneven, largest) if g not in steps]
-        if not untried:
-            break
-        step = one_net(untried[0])
-        if step.achieved <= value:
-            meeting = step.net_size
-        elif step.achieved < PLATEAU * best.achieved:
-            best = step
-        if meeting is not None:
-            break
-    # bisect back between the last failing and the first meeting net
+    uniform = NetSearch(lambda size: one_net(size, "uniform"), base, largest, value, NOISE_MARGIN * floor)
+    meeting = uniform.grown()
+    steps = []
     if meeting is not None:
-        low, high = best.net_size, meeting
-        while True:
-            middle = tuple((a + b) // 2 for a, b in zip(low, high))
-            if middle == low or middle in steps:
-                break
-            if one_net(middle).achieved <= value:
-                high = middle
-            else:
-                low = middle
-    met = [s for s in steps.values() if s.achieved <= value]
-    pool = met or list(steps.values())
-    chosen = min(pool, key=lambda s: (s.net_size[0] * s.net_size[1], s.achieved) if met else
-                 (s.achieved, s.net_size[0] * s.net_size[1])).net_size
-    final = dataclasses.replace(config, net_size=chosen, tolerance=None, tolerance_rel=None, topology=topology)
-    result = fit(points, final, on_iteration=on_iteration)
+        meeting = uniform.shrunk(meeting)
+        if swarm:  # below the classical net, where the knots' places decide
+            placed = NetSearch(lambda size: one_net(size, "swarm"), base, largest, value, NOISE_MARGIN * floor)
+            placed.shrunk(meeting)
+            steps = list(placed.steps.values())
+    steps = list(uniform.steps.values()) + steps
+    best = chosen_step(steps, value)
+    result = fit(points, sized(best.net_size, best.knots), on_iteration=on_iteration, swarm_weights=False)
     achieved = measure(result.distances, name)
+    if achieved > value and best.knots == "swarm":  # on every point the placed knots miss: the classical net
+        fallback = fit(points, sized(meeting, "uniform"), on_iteration=on_iteration, swarm_weights=False)
+        if measure(fallback.distances, name) <= value:
+            best, result = uniform.steps[meeting], fallback
+            achieved = measure(result.distances, name)
     tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
-                 "achieved": achieved, "met": bool(achieved <= value), "net_size": list(chosen),
-                 "noise": sigma, "searched": [s.to_dict() for s in steps.values()]}
+                 "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
+                 "noise": sigma, "searched": [s.to_dict() for s in steps]}
     result.info["tolerance"] = tolerance
     result.notes.insert(0, tolerance_sentence(tolerance))
     return result
