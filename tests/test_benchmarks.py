@@ -206,6 +206,104 @@ def test_scorer_reads_trimmed_surfaces(tmp_path):
     assert scorer.SurfaceDistance(s, trimmed=False)(above_hole)[0] < 1e-9
 
 
+# ---- where the data end: spacing, overrun, bare share ---------------------------------------------
+
+STEP = 1.0 / 40  # the grid cloud's step
+INTERIOR = (4 + 2 * np.sqrt(2.0)) * STEP / 6  # 4 neighbours at h, 2 at h sqrt 2
+EDGE = (5 + 2 * np.sqrt(2.0)) * STEP / 6  # an edge point's: 3 at h, 2 at h sqrt 2, then one at 2h
+
+
+def grid_cloud() -> np.ndarray:
+    """The unit square in z = 0 as a 41 x 41 grid."""
+    x, y = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41), indexing="ij")
+    return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+
+
+def flat_patch(width: float, height: float = 1.0):
+    """The bilinear patch [0, width] x [0, height] in z = 0 over the domain [0, 1]^2."""
+    from psonurbs.geometry.nurbs import NurbsSurface
+
+    corners = np.array([[[0.0, 0.0, 0.0], [0.0, height, 0.0]], [[width, 0.0, 0.0], [width, height, 0.0]]])
+    return NurbsSurface(1, 1, [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 1.0, 1.0], corners, np.ones((2, 2)))
+
+
+def test_local_spacing_on_a_square_grid():
+    spacing = scorer.local_spacing(grid_cloud())
+    x, y = grid_cloud()[:, :2].T
+    side = (np.minimum(x, 1 - x) < 1e-9) & (np.minimum(y, 1 - y) > 1.5 * STEP)  # on an edge, off the corners
+    inner = np.minimum.reduce([x, 1 - x, y, 1 - y]) > 1.5 * STEP
+    assert np.allclose(spacing[inner], INTERIOR, rtol=1e-12)
+    assert np.allclose(spacing[side], EDGE, rtol=1e-12)
+
+
+def test_a_surface_past_the_data_overruns_by_its_overhang_in_spacings(tmp_path):
+    """The patch runs d = 0.2 past the grid's edge u = 1: its far edge is d from the last
+    column (and at most half a step along it), whose points are EDGE apart."""
+    d = 0.2
+    points = grid_cloud()
+    cloud = write_fit(tmp_path, flat_patch(1.0 + d), points)
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=301)
+    diag = np.sqrt(2.0)
+    assert figures["spacing"] == pytest.approx(INTERIOR / diag, rel=1e-12)
+    far = np.hypot(d, STEP / 2) / EDGE  # the far edge halfway between two points of the column
+    assert d / EDGE <= figures["overrun_max"] <= far * (1 + 1e-9)
+    assert figures["overrun_max"] == pytest.approx(far, rel=1e-4)
+    # the far edge is 1 of the boundary's 4.4 units, its ends near the corners (h in all) nearer
+    # to a corner point of a wider spacing: the top 0.22 units all lie on it, where the ratio
+    # grows with the offset along the column, uniform in [0, h / 2]
+    offset = (1 - 0.05 * 4.4 / (1 - STEP)) * STEP / 2
+    assert figures["overrun_p95"] == pytest.approx(np.hypot(d, offset) / EDGE, rel=2e-4)
+    # bare: farther than 3 EDGE from the last column, a strip (0.2 - 3 EDGE) wide of 1.2
+    assert figures["bare_share"] == pytest.approx((d - 3 * EDGE) / (1 + d), rel=0.03)
+    assert "truth_sigma" not in figures and "cover_max_sp" not in figures
+
+
+def test_a_trim_loop_inside_the_data_does_not_overrun(tmp_path):
+    points = grid_cloud()
+    cloud = write_fit(tmp_path, flat_patch(1.2), points, trim=[square_loop(0.1, 0.7)])
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=RES)
+    assert figures["trimmed"] is True
+    assert 0 < figures["overrun_max"] <= STEP / np.sqrt(2.0) / INTERIOR  # never farther than a cell's middle
+    assert figures["overrun_p95"] <= figures["overrun_max"]
+    untrimmed = scorer.score(write_fit(tmp_path / "b", flat_patch(1.2), points), tmp_path / "b", stem="scan", res=RES)
+    assert figures["bare_share"] == untrimmed["bare_share"] > 0  # the untrimmed surface's, either way
+
+
+def test_cover_in_spacings_and_truth_in_sigmas_on_the_inliers(tmp_path):
+    """The truth runs 0.3 past the patch's edge y = 1; 20 junk points over the square do not
+    count in the spacing when the truth says there are outliers."""
+    junk = np.column_stack([np.random.default_rng(0).random((20, 2)), np.full(20, 0.5)])
+    points = np.concatenate([grid_cloud(), junk])
+    cloud = write_fit(tmp_path, flat_patch(1.0), points)
+    vertices, triangles = flat_patch(1.0, 1.3).tessellate(41, 53)
+    np.savez(tmp_path / "truth.npz", vertices=vertices, triangles=triangles, noise=0.001, outliers=0.01)
+    figures = scorer.score(cloud, tmp_path, tmp_path / "truth.npz", stem="scan", res=RES)
+    diag = np.sqrt(2.0 + 0.25)
+    assert figures["inliers"] == len(grid_cloud())
+    assert figures["spacing"] == pytest.approx(INTERIOR / diag, rel=1e-12)
+    assert figures["cover_max"] == pytest.approx(0.3 / diag, rel=1e-9)
+    assert figures["cover_max_sp"] == pytest.approx(figures["cover_max"] / figures["spacing"], rel=1e-12)
+    assert figures["cover_max_sp"] == pytest.approx(0.3 / INTERIOR, rel=1e-9)
+    assert figures["truth_sigma"] == pytest.approx(figures["truth_rms"] / 0.001, rel=1e-12)
+    assert figures["overrun_max"] < 0.6 and figures["bare_share"] == 0.0  # the patch is where the grid is
+
+
+def test_the_boundary_leaves_out_seams_and_poles():
+    closed = scorer.Surface(closed_u_surface().to_dict())
+    rim, lengths = scorer.boundary(closed, 1.0)
+    assert len(rim) == 2 * scorer.BOUNDARY_SAMPLES  # the two ends of the tube, not its seam
+    heights = np.unique(np.round(rim[:, 2], 9))
+    assert np.allclose(heights, [0.0, 2.0])
+    corners = [[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]]  # u = 0 is a point
+    triangle = scorer.Surface({"degree_u": 1, "degree_v": 1, "knots_u": [0, 0, 1, 1], "knots_v": [0, 0, 1, 1],
+                               "control_points": corners})
+    rim, lengths = scorer.boundary(triangle, 1.0)
+    assert len(rim) == 3 * scorer.BOUNDARY_SAMPLES
+    assert lengths.sum() == pytest.approx(2 + np.sqrt(2.0), rel=1e-9)
+    steps = np.linalg.norm(np.diff(rim[:scorer.BOUNDARY_SAMPLES], axis=0), axis=1)
+    assert np.allclose(steps, steps.mean(), rtol=1e-6)  # evenly in arc length
+
+
 @pytest.mark.parametrize("collapsed", [False, True], ids=["patch", "collapsed-row"])
 def test_mesh_distance_is_the_least_over_every_triangle(collapsed):
     vertices, triangles = open_surface().tessellate(31, 25)
