@@ -58,7 +58,7 @@ def test_the_generator_makes_the_sample_clouds():
 def test_every_suite_is_one_kind_of_case_with_names_of_its_own():
     names = [name for suite in cases.SUITES.values() for name in suite]
     assert len(names) == len(set(names))  # a name says which case, whatever the suite
-    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims"}
+    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims", "edges"}
     assert len(cases.CASES) == 15 and cases.CASES is cases.SUITES["public"]
     for suite, members in cases.SUITES.items():
         assert all(isinstance(c, cases.Case) and c.suite == suite for c in members.values()), suite
@@ -91,6 +91,43 @@ def test_the_generator_writes_cases_with_their_truth(tmp_path):
     assert cases.main([str(tmp_path / "trims"), "--suite", "trims", "--only", "franke_annulus"]) == 0
     assert (tmp_path / "trims" / "franke_annulus.yaml").read_text() == cases.SUITES["trims"]["franke_annulus"].yaml()
     assert cases.main([str(tmp_path), "--only", "franke_annulus"]) == 2  # not a public case
+
+
+EDGES = {"step_bump14": ((4, 4), (14, 14), 4000), "graded_helicoid": ((4, 4), (12, 6), 4000),
+         "s_fold": ((4, 4), (12, 6), 4000), "tilted_saddle_junk5": ((4, 4), (8, 8), 4000),
+         "franke_junk4": ((4, 4), (12, 12), 5000), "cone_sector270": ((3, 2), (7, 2), 3000),
+         "sphere_band288": ((4, 4), (10, 6), 4000), "wave_sparse_end": ((4, 4), (10, 10), 4000)}
+
+
+def test_the_edges_suite_writes_its_cases(tmp_path):
+    suite = cases.SUITES["edges"]
+    assert list(suite) == list(EDGES)
+    assert cases.main([str(tmp_path), "--suite", "edges"]) == 0
+    for name, (orders, net, count) in EDGES.items():
+        case = suite[name]
+        assert (case.orders, case.net, case.topology, case.footprint) == (orders, net, "open", None), name
+        assert f"orders: [{orders[0]}, {orders[1]}]\nnet_size: [{net[0]}, {net[1]}]" in \
+            (tmp_path / f"{name}.yaml").read_text(), name
+        assert scorer.read_points(tmp_path / f"{name}.ply").shape == (count, 3), name
+        truth = np.load(tmp_path / f"{name}.gt.npz")
+        assert len(truth["vertices"]) == cases.TRUTH_GRID ** 2, name  # the whole square
+        assert float(truth["outliers"]) == case.outliers and float(truth["noise"]) == case.noise, name
+    assert np.array_equal(suite["tilted_saddle_junk5"].points(0), cases.SUITES["robust"]["saddle_junk5"].points(0))
+
+
+def test_the_cone_sector_is_a_cone_sampled_evenly_by_area(tmp_path):
+    """Radius 0.5 + 0.5 z over 270 degrees, and as many points per unit of area near the
+    narrow end as near the wide one."""
+    case = cases.SUITES["edges"]["cone_sector270"]
+    truth = case.truth()[0]
+    points = case.points(0)
+    for xyz in (truth, points):
+        assert np.allclose(np.hypot(xyz[:, 0], xyz[:, 1]), 0.5 + 0.5 * xyz[:, 2], rtol=0, atol=1e-12)
+    angle = np.degrees(np.arctan2(points[:, 1], points[:, 0])) % 360
+    assert angle.max() < 270 and angle.max() > 269  # 0 to 270 degrees
+    narrow, wide = np.count_nonzero(points[:, 2] < 0.2), np.count_nonzero(points[:, 2] > 0.8)
+    # area of a band: proportional to its mean radius (0.55 and 0.95)
+    assert narrow / wide == pytest.approx(0.55 / 0.95, rel=0.15)
 
 
 @pytest.mark.skipif(not (OUTSIDE / "cases.py").exists(), reason="no outside benchmark beside the repository")
