@@ -22,6 +22,7 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
   inlier_rmse, inliers    as rmse, on the points within 4 noise sigmas of the truth
                           (cases with outliers, --gt)
   truth_rms, truth_max    surface (a res x res parameter grid) -> true surface (--gt)
+  truth_sigma             truth_rms over the noise sigma (--gt, noisy cases)
   cover_rms, cover_max    true surface (its vertices) -> fitted surface (--gt)
   overhang                share of the parameter grid farther than 2% of the diagonal
                           from every cloud point (surface where there are no data)
@@ -31,7 +32,6 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
   pole_spread             "topology": "sphere": how far each end row of the open direction
                           is from collapsing to a point
   curve_ok                the error curve has >= 2 rows and its "best" column never rises
-  truth_sigma             truth_rms over the noise sigma (--gt, noisy cases)
   spacing                 the median over the points of their local spacing, a point's mean
                           distance to its 6 nearest neighbours; the points here and below are
                           the cloud's, or only its inliers when the truth has outliers (--gt)
