@@ -19,6 +19,8 @@ Every case belongs to one suite (``SUITES``; ``CASES`` is the public one):
     features  localised features where knot placement decides the fit, and smooth
               shapes where the swarm must not make the fit worse
     trims     footprints with ragged edges, slots, an annulus, small holes, a torn edge
+    edges     data that end, thin out or carry junk near an edge: the surface should end
+              where they do
 
 For each CASE it writes OUT/CASE.ply (binary PLY, double x y z), OUT/CASE.yaml (the
 config to fit it with) and OUT/CASE.gt.npz (``vertices``, ``triangles``: the true
@@ -72,6 +74,33 @@ def denser_towards_u1(n: int) -> Sampler:
     def sample(rng):
         u = np.sqrt(rng.random(n))
         return u, rng.random(n)
+    return sample
+
+
+def graded(n: int, ratio: float) -> Sampler:
+    """Density rising linearly along u to ``ratio`` times its value at u = 0 (inverse of the cumulative)."""
+    def sample(rng):
+        share = rng.random(n)
+        return (np.sqrt(1.0 + (ratio * ratio - 1.0) * share) - 1.0) / (ratio - 1.0), rng.random(n)
+    return sample
+
+
+def equal_area_cone(n: int, r0: float, r1: float) -> Sampler:
+    """Uniform over a cone's area, its radius r0 at v = 0 and r1 at v = 1: v by the inverse of its cumulative area."""
+    def sample(rng):
+        u, share = rng.random(n), rng.random(n)
+        if r1 == r0:
+            return u, share
+        return u, (np.sqrt(r0 * r0 + (r1 * r1 - r0 * r0) * share) - r0) / (r1 - r0)
+    return sample
+
+
+def equal_area_band(n: int, degrees: float) -> Sampler:
+    """Uniform over the area of a sphere's band from latitude -degrees (v = 0) to +degrees (v = 1)."""
+    def sample(rng):
+        top = np.sin(np.radians(degrees))
+        latitude = np.arcsin(rng.uniform(-top, top, n))
+        return rng.random(n), 0.5 + latitude / (2.0 * np.radians(degrees))
     return sample
 
 
@@ -260,6 +289,40 @@ def tub(u, v):
 def cone(u, v):
     angle, r = np.radians(220.0) * u, 0.5 + v
     return xyz(r * np.cos(angle), r * np.sin(angle), 1.2 * v)
+
+
+def cone_sector(degrees: float, r0: float, r1: float, height_: float) -> Shape:
+    """A cone sector of ``degrees`` around the z axis, its radius r0 at z = 0 to r1 at z = height_."""
+    def shape(u, v):
+        angle, r = np.radians(degrees) * u, r0 + (r1 - r0) * v
+        return xyz(r * np.cos(angle), r * np.sin(angle), height_ * v)
+    return shape
+
+
+def sphere_band(longitude: float, latitude: float) -> Shape:
+    """The unit sphere's band over ``longitude`` degrees (u, centred on +x) and latitudes within +-``latitude``."""
+    def shape(u, v):
+        lon, lat = np.radians(longitude) * (u - 0.5), np.radians(latitude) * (2.0 * v - 1.0)
+        return xyz(np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat))
+    return shape
+
+
+def helicoid(u, v):
+    """1.5 turns of a helicoid strip, radius 0.3 to 1.0 along v, rising 0.3 a turn: it overlaps itself seen from any plane."""
+    angle, r = 1.5 * TAU * u, 0.3 + 0.7 * v
+    return xyz(r * np.cos(angle), r * np.sin(angle), 0.3 * angle / TAU)
+
+
+def s_fold(u, v):
+    """A sheet whose cross-section (along u) is an S of two 230-degree arcs of radius 0.5 that turn opposite
+    ways, tangent where they meet, extruded 1.5 along y: each arc's tangent turns past every direction,
+    so no plane sees the sheet as a height field."""
+    sweep, radius = np.radians(230.0), 0.5
+    s = 2.0 * sweep * u
+    first = s < sweep
+    angle = np.where(first, s - sweep, np.pi - (s - sweep))  # about (-r, 0) anticlockwise, then (r, 0) clockwise
+    centre = np.where(first, -radius, radius)
+    return xyz(centre + radius * np.cos(angle), 1.5 * v, radius * np.sin(angle))
 
 
 def vase(u, v):
@@ -575,10 +638,39 @@ def trim_cases() -> list[Case]:
     ]
 
 
+def edge_cases() -> list[Case]:
+    """Clouds whose data end, thin out or carry junk near an edge: where the data end, the
+    surface should end, neither short of it nor past it."""
+    def case(name, shape, sampler, orders, net, note, noise=0.0, junk=None):
+        return Case(name, "edges", shape, sampler, orders, net, "open", note, noise=noise, junk=junk)
+    return [
+        case("step_bump14", step_and_ridge, scattered(4000), (4, 4), (14, 14),
+             "the public step and ridge on a finer net: edges of a height field with steep features"),
+        case("graded_helicoid", helicoid, graded(4000, 20.0), (4, 4), (12, 6),
+             "1.5 turns of a helicoid, density rising 20-fold along the turns: the sparse end must not overrun",
+             noise=0.0005),
+        case("s_fold", s_fold, scattered(4000), (4, 4), (12, 6),
+             "a sheet folded like an S (two 230-degree arcs), no height field: its edges curl back", noise=0.001),
+        case("tilted_saddle_junk5", tilted_saddle, scattered(4000), (4, 4), (8, 8),
+             "the robust saddle tilted 40 degrees with 5% junk in the box: junk must not stretch the edges",
+             noise=0.002, junk=Junk("box", 0.05)),
+        case("franke_junk4", franke, scattered(5000), (4, 4), (12, 12),
+             "Franke with 4% junk in the box: junk must not stretch the edges", noise=0.001, junk=Junk("box", 0.04)),
+        case("cone_sector270", cone_sector(270.0, 0.5, 1.0, 1.0), equal_area_cone(3000, 0.5, 1.0), (3, 2), (7, 2),
+             "a cone sector over 270 degrees, area-uniform: exactly rational quadratic (three 90-degree arcs) "
+             "by linear"),
+        case("sphere_band288", sphere_band(288.0, 35.0), equal_area_band(4000, 35.0), (4, 4), (10, 6),
+             "a sphere's band, 288 degrees of longitude by latitudes -35 to 35: edges on a doubly curved surface",
+             noise=0.001),
+        case("wave_sparse_end", wave, graded(4000, 20.0), (4, 4), (10, 10),
+             "the public wave, density falling 20-fold towards u = 0: the sparse end must still be covered"),
+    ]
+
+
 SUITES: dict[str, dict[str, Case]] = {
     name: {case.name: case for case in make()}
     for name, make in (("public", public_cases), ("robust", robust_cases), ("unseen", unseen_cases),
-                       ("features", feature_cases), ("trims", trim_cases))}
+                       ("features", feature_cases), ("trims", trim_cases), ("edges", edge_cases))}
 CASES = SUITES["public"]
 
 

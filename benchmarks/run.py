@@ -46,8 +46,8 @@ REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "benchmark.md"
 VARIANT_ARGS = {"swarm": [], "classical": ["--particles", "1", "--iterations", "1"],
                 "full": ["--strategy", "full"], "auto": ["--topology", "auto"]}
-FULL = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "overhang", "seam", "pole_spread",
-        "mesh_vs_nurbs", "claim_err", "curve_ok", "suspect", "noise"]
+FULL = ["topology", "param", "rmse", "truth_rms", "truth_max", "cover_max", "cover_max_sp", "overhang", "overrun_max",
+        "overrun_p95", "seam", "pole_spread", "mesh_vs_nurbs", "claim_err", "curve_ok", "suspect", "noise"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,8 @@ VIEWS = {
                                      "overhang", "outliers", "suspect")),
     "trims": SuiteView(("swarm",), ("points", "loops", "expected", "overhang", "rmse", "truth_rms", "truth_max",
                                     "cover_max", "mesh_vs_nurbs", "noise")),
+    "edges": SuiteView(("swarm",), ("topology", "param", "loops", "rmse", "truth_rms", "truth_sigma", "cover_max_sp",
+                                    "overrun_max", "overrun_p95", "bare_share", "empty_share")),
     "real": SuiteView(("swarm",), ("points", "topology", "outliers", "rmse", "p99", "max", "overhang",
                                    "claim_err")),
 }
@@ -99,7 +101,8 @@ def outside_score(script: Path):
 
 def fit_and_score(job: Job, variant: str, out: Path, exe: str = "psonurbs", scorer=score) -> dict:
     """``EXE fit`` on the job's cloud into ``out``, timed, then its figures: the scorer's and
-    what the JSON says (topology, parametrisation, self-checks, outliers, trim loops)."""
+    what the JSON says (topology, parametrisation, self-checks, outliers, trim loops and the
+    share of the untrimmed surface the fit found empty)."""
     cmd = [exe, "fit", str(job.cloud), "--config", str(job.config), "--out", str(out), "--quiet",
            *VARIANT_ARGS[variant]]
     start = time.perf_counter()
@@ -116,6 +119,8 @@ def fit_and_score(job: Job, variant: str, out: Path, exe: str = "psonurbs", scor
     result["suspect"] = {True: "SUSPECT", False: "no"}.get(doc["metrics"].get("suspect"))  # None: not checked
     result["outliers"] = doc["metrics"].get("outliers")
     result["loops"] = len(doc["surface"].get("trim") or []) or None
+    trim = doc["fit"].get("trim")
+    result["empty_share"] = trim.get("empty_share") if isinstance(trim, dict) else None  # the fit's own figure
     result["expected"] = job.loops
     seams = [result[k] for k in ("seam_u", "seam_v") if k in result]
     result["seam"] = max(seams) if seams else None
@@ -249,7 +254,7 @@ suite measures and how to run it; the figures are defined in `benchmarks/score.p
 Each suite on its own:
 
     python3 benchmarks/run.py --suite public      # the table below
-    python3 benchmarks/run.py --suite features    # also robust, unseen, trims
+    python3 benchmarks/run.py --suite features    # also robust, unseen, trims, edges
     python3 benchmarks/run.py --suite real --scans SCANS/
 
 ## The public table

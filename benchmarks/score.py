@@ -22,6 +22,7 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
   inlier_rmse, inliers    as rmse, on the points within 4 noise sigmas of the truth
                           (cases with outliers, --gt)
   truth_rms, truth_max    surface (a res x res parameter grid) -> true surface (--gt)
+  truth_sigma             truth_rms over the noise sigma (--gt, noisy cases)
   cover_rms, cover_max    true surface (its vertices) -> fitted surface (--gt)
   overhang                share of the parameter grid farther than 2% of the diagonal
                           from every cloud point (surface where there are no data)
@@ -31,6 +32,19 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
   pole_spread             "topology": "sphere": how far each end row of the open direction
                           is from collapsing to a point
   curve_ok                the error curve has >= 2 rows and its "best" column never rises
+  spacing                 the median over the points of their local spacing, a point's mean
+                          distance to its 6 nearest neighbours; the points here and below are
+                          the cloud's, or only its inliers when the truth has outliers (--gt)
+  overrun_max, overrun_p95
+                          where the data end, the surface should end: its boundary (each trim
+                          loop, or the domain's edges but a closed direction's seam and an
+                          edge collapsed to a point) sampled evenly in arc length on the
+                          surface, each sample's distance to the nearest point over that
+                          point's local spacing (a count of spacings, not a share of the
+                          diagonal); the largest, and the 95th percentile by arc length
+  cover_max_sp            cover_max over spacing (--gt): the truth left uncovered, in spacings
+  bare_share              share of the untrimmed surface's area (|S_u x S_v|, grid weights)
+                          farther from the nearest point than 3 of that point's local spacings
   trimmed                 whether "surface" has "trim" loops: closed B-spline curves
                           {"degree", "knots", "control_points": [[u, v], ...]} in the
                           parameter domain, the first the outer boundary, the others holes.
@@ -53,6 +67,9 @@ from scipy.spatial import cKDTree
 
 OVERHANG = 0.02  # of the diagonal
 INLIER_SIGMAS = 4.0
+NEIGHBOURS = 6  # a point's local spacing: its mean distance to this many nearest neighbours
+BARE_SPACINGS = 3.0  # surface farther than this many local spacings from the data is bare
+BOUNDARY_SAMPLES = 2000  # per trim loop or domain edge
 
 
 # ---- files -------------------------------------------------------------------------------
@@ -212,6 +229,15 @@ class Surface:
         h = np.einsum("ai,ijc,bj->abc", bu, self.homogeneous, bv)
         return h[..., :3] / h[..., 3:]
 
+    def grid_tangents(self, us: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """S_u and S_v on the tensor grid us x vs, each (len(us), len(vs), 3)."""
+        bu, dbu = self.u.basis(us, 1)
+        bv, dbv = self.v.basis(vs, 1)
+        h, hu, hv = (np.einsum("ai,ijc,bj->abc", a, self.homogeneous, b) for a, b in ((bu, bv), (dbu, bv), (bu, dbv)))
+        w = h[..., 3:]
+        s = h[..., :3] / w
+        return (hu[..., :3] - hu[..., 3:] * s) / w, (hv[..., :3] - hv[..., 3:] * s) / w
+
     def at(self, u: np.ndarray, v: np.ndarray, derivatives: bool = False):
         """S at the pairs (u_k, v_k): (N, 3); with ``derivatives`` also
         (S_u, S_v, S_uu, S_uv, S_vv) by the quotient rule on the homogeneous sums."""
@@ -279,6 +305,80 @@ def even_odd(polygons: list[np.ndarray], q: np.ndarray, chunk: int = 2048) -> np
 def distance_to_polygons(polygons: list[np.ndarray], q: np.ndarray) -> np.ndarray:
     """Distance in the parameter plane from each point of q to the nearest polygon vertex."""
     return cKDTree(np.concatenate(polygons)).query(q)[0]
+
+
+# ---- where the data end ----------------------------------------------------------------------
+
+def local_spacing(points: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
+    """Each point's mean distance to its k nearest other points (N,)."""
+    k = min(k, len(points) - 1)
+    if k < 1:
+        return np.zeros(len(points))
+    d = cKDTree(points).query(points, k=k + 1)[0]
+    return d[:, 1:].mean(axis=1)  # the first column is the point itself (or a copy of it)
+
+
+def boundary(surface: Surface, diag: float, samples: int = BOUNDARY_SAMPLES,
+             dense: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """The surface's boundary: points on the surface and the arc length each stands for.
+
+    Each trim loop's polygon, or (untrimmed) each edge of the parameter domain but those of
+    a closed direction (its seam) and those shorter than 1e-9 of the diagonal (a pole),
+    resampled to ``samples`` points evenly in arc length on the surface."""
+    if surface.trim:
+        curves = [loop.polygon for loop in surface.trim]
+    else:
+        t = np.linspace(0.0, 1.0, dense)
+        us, vs = surface.parameters(t, t)
+        u, v = surface.u, surface.v
+        curves = [] if u.closed else [np.column_stack([np.full(dense, x), vs]) for x in (u.lo, u.hi)]
+        curves += [] if v.closed else [np.column_stack([us, np.full(dense, y)]) for y in (v.lo, v.hi)]
+    points, lengths = [], []
+    for uv in curves:
+        u, v = surface.u.clamp(uv[:, 0]), surface.v.clamp(uv[:, 1])
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(surface.at(u, v), axis=0), axis=1))])
+        if along[-1] < 1e-9 * diag:
+            continue
+        s = np.linspace(0.0, along[-1], samples)
+        # interpolated in the polygon's own (u, v), not across a closed direction's wrap
+        points.append(surface.at(surface.u.clamp(np.interp(s, along, uv[:, 0])),
+                                 surface.v.clamp(np.interp(s, along, uv[:, 1]))))
+        lengths.append(np.full(samples, along[-1] / samples))
+    if not points:
+        return np.zeros((0, 3)), np.zeros(0)
+    return np.concatenate(points), np.concatenate(lengths)
+
+
+def weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
+    """The least value below which at least a share q of the weight lies."""
+    order = np.argsort(values, kind="stable")
+    total = np.cumsum(weights[order])
+    return float(values[order][min(np.searchsorted(total, q * total[-1]), len(values) - 1)])
+
+
+def edge_figures(surface: Surface, grid: np.ndarray, us: np.ndarray, vs: np.ndarray, support: np.ndarray,
+                 diag: float) -> dict:
+    """spacing, overrun_max, overrun_p95 and bare_share (see the module) against the
+    points ``support``; ``grid`` is the untrimmed surface on us x vs."""
+    if len(support) < 2:
+        return {}
+    spacing = local_spacing(support)
+    floor = 1e-12 * diag  # a point with 6 copies of itself has no spacing
+    tree = cKDTree(support)
+    out = {"spacing": float(np.median(spacing)) / diag}
+    rim, lengths = boundary(surface, diag)
+    if len(rim):
+        d, nearest = tree.query(rim)
+        ratio = d / np.maximum(spacing[nearest], floor)
+        out.update(overrun_max=float(ratio.max()), overrun_p95=weighted_quantile(ratio, lengths, 0.95))
+    su, sv = surface.grid_tangents(us, vs)
+    wu, wv = (np.r_[0.5, np.ones(len(x) - 2), 0.5] * np.diff(x).mean() for x in (us, vs))  # trapezoid
+    area = (np.linalg.norm(np.cross(su, sv), axis=2) * np.outer(wu, wv)).ravel()
+    if area.sum() > 0:
+        d, nearest = tree.query(grid.reshape(-1, 3))
+        bare = d > BARE_SPACINGS * np.maximum(spacing[nearest], floor)
+        out["bare_share"] = float(area[bare].sum() / area.sum())
+    return out
 
 
 # ---- closest points on the surface ----------------------------------------------------------
@@ -532,6 +632,7 @@ def score(cloud: Path, outdir: Path, gt: Path | None = None, stem: str | None = 
         ends = (grid[:, 0], grid[:, -1]) if doc["surface"].get("closed_u") else (grid[0], grid[-1])
         out["pole_spread"] = float(max(np.linalg.norm(e - e.mean(0), axis=1).max() for e in ends) / diag)
 
+    support = points  # the points the edge figures measure against: the inliers where there is junk
     if gt is not None:
         truth = np.load(gt)
         to_truth = MeshDistance(truth["vertices"], truth["triangles"])
@@ -544,7 +645,13 @@ def score(cloud: Path, outdir: Path, gt: Path | None = None, stem: str | None = 
             inliers = to_truth(points) / diag <= max(INLIER_SIGMAS * sigma, 1e-9)
             out["inlier_rmse"] = float(np.sqrt(np.mean(d[inliers] ** 2)))
             out["inliers"] = int(inliers.sum())
+            support = points[inliers]
         out["noise"] = sigma
+        if sigma > 0:
+            out["truth_sigma"] = out["truth_rms"] / sigma
+    out.update(edge_figures(surface, grid, us, vs, support, diag))
+    if "cover_max" in out and out.get("spacing"):
+        out["cover_max_sp"] = out["cover_max"] / out["spacing"]
     out["curve_ok"] = curve_ok(outdir / f"{stem}_error.csv")
     return out
 

@@ -58,7 +58,7 @@ def test_the_generator_makes_the_sample_clouds():
 def test_every_suite_is_one_kind_of_case_with_names_of_its_own():
     names = [name for suite in cases.SUITES.values() for name in suite]
     assert len(names) == len(set(names))  # a name says which case, whatever the suite
-    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims"}
+    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims", "edges"}
     assert len(cases.CASES) == 15 and cases.CASES is cases.SUITES["public"]
     for suite, members in cases.SUITES.items():
         assert all(isinstance(c, cases.Case) and c.suite == suite for c in members.values()), suite
@@ -91,6 +91,43 @@ def test_the_generator_writes_cases_with_their_truth(tmp_path):
     assert cases.main([str(tmp_path / "trims"), "--suite", "trims", "--only", "franke_annulus"]) == 0
     assert (tmp_path / "trims" / "franke_annulus.yaml").read_text() == cases.SUITES["trims"]["franke_annulus"].yaml()
     assert cases.main([str(tmp_path), "--only", "franke_annulus"]) == 2  # not a public case
+
+
+EDGES = {"step_bump14": ((4, 4), (14, 14), 4000), "graded_helicoid": ((4, 4), (12, 6), 4000),
+         "s_fold": ((4, 4), (12, 6), 4000), "tilted_saddle_junk5": ((4, 4), (8, 8), 4000),
+         "franke_junk4": ((4, 4), (12, 12), 5000), "cone_sector270": ((3, 2), (7, 2), 3000),
+         "sphere_band288": ((4, 4), (10, 6), 4000), "wave_sparse_end": ((4, 4), (10, 10), 4000)}
+
+
+def test_the_edges_suite_writes_its_cases(tmp_path):
+    suite = cases.SUITES["edges"]
+    assert list(suite) == list(EDGES)
+    assert cases.main([str(tmp_path), "--suite", "edges"]) == 0
+    for name, (orders, net, count) in EDGES.items():
+        case = suite[name]
+        assert (case.orders, case.net, case.topology, case.footprint) == (orders, net, "open", None), name
+        assert f"orders: [{orders[0]}, {orders[1]}]\nnet_size: [{net[0]}, {net[1]}]" in \
+            (tmp_path / f"{name}.yaml").read_text(), name
+        assert scorer.read_points(tmp_path / f"{name}.ply").shape == (count, 3), name
+        truth = np.load(tmp_path / f"{name}.gt.npz")
+        assert len(truth["vertices"]) == cases.TRUTH_GRID ** 2, name  # the whole square
+        assert float(truth["outliers"]) == case.outliers and float(truth["noise"]) == case.noise, name
+    assert np.array_equal(suite["tilted_saddle_junk5"].points(0), cases.SUITES["robust"]["saddle_junk5"].points(0))
+
+
+def test_the_cone_sector_is_a_cone_sampled_evenly_by_area(tmp_path):
+    """Radius 0.5 + 0.5 z over 270 degrees, and as many points per unit of area near the
+    narrow end as near the wide one."""
+    case = cases.SUITES["edges"]["cone_sector270"]
+    truth = case.truth()[0]
+    points = case.points(0)
+    for xyz in (truth, points):
+        assert np.allclose(np.hypot(xyz[:, 0], xyz[:, 1]), 0.5 + 0.5 * xyz[:, 2], rtol=0, atol=1e-12)
+    angle = np.degrees(np.arctan2(points[:, 1], points[:, 0])) % 360
+    assert angle.max() < 270 and angle.max() > 269  # 0 to 270 degrees
+    narrow, wide = np.count_nonzero(points[:, 2] < 0.2), np.count_nonzero(points[:, 2] > 0.8)
+    # area of a band: proportional to its mean radius (0.55 and 0.95)
+    assert narrow / wide == pytest.approx(0.55 / 0.95, rel=0.15)
 
 
 @pytest.mark.skipif(not (OUTSIDE / "cases.py").exists(), reason="no outside benchmark beside the repository")
@@ -204,6 +241,104 @@ def test_scorer_reads_trimmed_surfaces(tmp_path):
     d = scorer.SurfaceDistance(s)(above_hole)[0]
     assert d == pytest.approx(np.linalg.norm(rim - above_hole, axis=1).min(), rel=1e-3)
     assert scorer.SurfaceDistance(s, trimmed=False)(above_hole)[0] < 1e-9
+
+
+# ---- where the data end: spacing, overrun, bare share ---------------------------------------------
+
+STEP = 1.0 / 40  # the grid cloud's step
+INTERIOR = (4 + 2 * np.sqrt(2.0)) * STEP / 6  # 4 neighbours at h, 2 at h sqrt 2
+EDGE = (5 + 2 * np.sqrt(2.0)) * STEP / 6  # an edge point's: 3 at h, 2 at h sqrt 2, then one at 2h
+
+
+def grid_cloud() -> np.ndarray:
+    """The unit square in z = 0 as a 41 x 41 grid."""
+    x, y = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41), indexing="ij")
+    return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+
+
+def flat_patch(width: float, height: float = 1.0):
+    """The bilinear patch [0, width] x [0, height] in z = 0 over the domain [0, 1]^2."""
+    from psonurbs.geometry.nurbs import NurbsSurface
+
+    corners = np.array([[[0.0, 0.0, 0.0], [0.0, height, 0.0]], [[width, 0.0, 0.0], [width, height, 0.0]]])
+    return NurbsSurface(1, 1, [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 1.0, 1.0], corners, np.ones((2, 2)))
+
+
+def test_local_spacing_on_a_square_grid():
+    spacing = scorer.local_spacing(grid_cloud())
+    x, y = grid_cloud()[:, :2].T
+    side = (np.minimum(x, 1 - x) < 1e-9) & (np.minimum(y, 1 - y) > 1.5 * STEP)  # on an edge, off the corners
+    inner = np.minimum.reduce([x, 1 - x, y, 1 - y]) > 1.5 * STEP
+    assert np.allclose(spacing[inner], INTERIOR, rtol=1e-12)
+    assert np.allclose(spacing[side], EDGE, rtol=1e-12)
+
+
+def test_a_surface_past_the_data_overruns_by_its_overhang_in_spacings(tmp_path):
+    """The patch runs d = 0.2 past the grid's edge u = 1: its far edge is d from the last
+    column (and at most half a step along it), whose points are EDGE apart."""
+    d = 0.2
+    points = grid_cloud()
+    cloud = write_fit(tmp_path, flat_patch(1.0 + d), points)
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=301)
+    diag = np.sqrt(2.0)
+    assert figures["spacing"] == pytest.approx(INTERIOR / diag, rel=1e-12)
+    far = np.hypot(d, STEP / 2) / EDGE  # the far edge halfway between two points of the column
+    assert d / EDGE <= figures["overrun_max"] <= far * (1 + 1e-9)
+    assert figures["overrun_max"] == pytest.approx(far, rel=1e-4)
+    # the far edge is 1 of the boundary's 4.4 units, its ends near the corners (h in all) nearer
+    # to a corner point of a wider spacing: the top 0.22 units all lie on it, where the ratio
+    # grows with the offset along the column, uniform in [0, h / 2]
+    offset = (1 - 0.05 * 4.4 / (1 - STEP)) * STEP / 2
+    assert figures["overrun_p95"] == pytest.approx(np.hypot(d, offset) / EDGE, rel=2e-4)
+    # bare: farther than 3 EDGE from the last column, a strip (0.2 - 3 EDGE) wide of 1.2
+    assert figures["bare_share"] == pytest.approx((d - 3 * EDGE) / (1 + d), rel=0.03)
+    assert "truth_sigma" not in figures and "cover_max_sp" not in figures
+
+
+def test_a_trim_loop_inside_the_data_does_not_overrun(tmp_path):
+    points = grid_cloud()
+    cloud = write_fit(tmp_path, flat_patch(1.2), points, trim=[square_loop(0.1, 0.7)])
+    figures = scorer.score(cloud, tmp_path, stem="scan", res=RES)
+    assert figures["trimmed"] is True
+    assert 0 < figures["overrun_max"] <= STEP / np.sqrt(2.0) / INTERIOR  # never farther than a cell's middle
+    assert figures["overrun_p95"] <= figures["overrun_max"]
+    untrimmed = scorer.score(write_fit(tmp_path / "b", flat_patch(1.2), points), tmp_path / "b", stem="scan", res=RES)
+    assert figures["bare_share"] == untrimmed["bare_share"] > 0  # the untrimmed surface's, either way
+
+
+def test_cover_in_spacings_and_truth_in_sigmas_on_the_inliers(tmp_path):
+    """The truth runs 0.3 past the patch's edge y = 1; 20 junk points over the square do not
+    count in the spacing when the truth says there are outliers."""
+    junk = np.column_stack([np.random.default_rng(0).random((20, 2)), np.full(20, 0.5)])
+    points = np.concatenate([grid_cloud(), junk])
+    cloud = write_fit(tmp_path, flat_patch(1.0), points)
+    vertices, triangles = flat_patch(1.0, 1.3).tessellate(41, 53)
+    np.savez(tmp_path / "truth.npz", vertices=vertices, triangles=triangles, noise=0.001, outliers=0.01)
+    figures = scorer.score(cloud, tmp_path, tmp_path / "truth.npz", stem="scan", res=RES)
+    diag = np.sqrt(2.0 + 0.25)
+    assert figures["inliers"] == len(grid_cloud())
+    assert figures["spacing"] == pytest.approx(INTERIOR / diag, rel=1e-12)
+    assert figures["cover_max"] == pytest.approx(0.3 / diag, rel=1e-9)
+    assert figures["cover_max_sp"] == pytest.approx(figures["cover_max"] / figures["spacing"], rel=1e-12)
+    assert figures["cover_max_sp"] == pytest.approx(0.3 / INTERIOR, rel=1e-9)
+    assert figures["truth_sigma"] == pytest.approx(figures["truth_rms"] / 0.001, rel=1e-12)
+    assert figures["overrun_max"] < 0.6 and figures["bare_share"] == 0.0  # the patch is where the grid is
+
+
+def test_the_boundary_leaves_out_seams_and_poles():
+    closed = scorer.Surface(closed_u_surface().to_dict())
+    rim, lengths = scorer.boundary(closed, 1.0)
+    assert len(rim) == 2 * scorer.BOUNDARY_SAMPLES  # the two ends of the tube, not its seam
+    heights = np.unique(np.round(rim[:, 2], 9))
+    assert np.allclose(heights, [0.0, 2.0])
+    corners = [[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]]  # u = 0 is a point
+    triangle = scorer.Surface({"degree_u": 1, "degree_v": 1, "knots_u": [0, 0, 1, 1], "knots_v": [0, 0, 1, 1],
+                               "control_points": corners})
+    rim, lengths = scorer.boundary(triangle, 1.0)
+    assert len(rim) == 3 * scorer.BOUNDARY_SAMPLES
+    assert lengths.sum() == pytest.approx(2 + np.sqrt(2.0), rel=1e-9)
+    steps = np.linalg.norm(np.diff(rim[:scorer.BOUNDARY_SAMPLES], axis=0), axis=1)
+    assert np.allclose(steps, steps.mean(), rtol=1e-6)  # evenly in arc length
 
 
 @pytest.mark.parametrize("collapsed", [False, True], ids=["patch", "collapsed-row"])
