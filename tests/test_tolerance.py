@@ -183,8 +183,10 @@ def test_the_outputs_of_a_search(tmp_path):
     assert len(document["surface"]["knots_u"]) == nu + 4 and len(document["surface"]["knots_v"]) == nv + 4
     with open(tmp_path / "out" / "bump_tolerance.csv") as file:
         rows = list(csv.DictReader(file))
-    assert list(rows[0]) == ["net_u", "net_v", "control_points", "achieved", "met", "seconds"]
+    assert list(rows[0]) == ["net_u", "net_v", "control_points", "achieved", "met", "seconds", "swarm"]
     assert [[int(r["net_u"]), int(r["net_v"])] for r in rows] == [s["net_size"] for s in tolerance["searched"]]
+    assert [int(r["swarm"]) for r in rows] == [int(s["knots"] == "swarm") for s in tolerance["searched"]]
+    assert {s["knots"] for s in tolerance["searched"]} == {"uniform", "swarm"}  # both searches ran
     assert all(int(r["control_points"]) == int(r["net_u"]) * int(r["net_v"]) for r in rows)
     assert [int(r["met"]) for r in rows] == [int(s["achieved"] <= 0.004) for s in tolerance["searched"]]
     sentence = f"tolerance 4.0e-03 (p99) met: {tolerance['achieved']:.1e} with {nu}x{nv} control points"

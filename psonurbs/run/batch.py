@@ -192,16 +192,17 @@ def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
     return row
 
 
-TOLERANCE_COLUMNS = ["net_u", "net_v", "control_points", "achieved", "met", "seconds"]
+TOLERANCE_COLUMNS = ["net_u", "net_v", "control_points", "achieved", "met", "seconds", "swarm"]
 
 
 def _tolerance_csv(searched: dict) -> str:
     """STEM_tolerance.csv: one row per net the search fitted (``fit.tolerance.searched``),
-    achieved in cloud units, met as 1 or 0, control points nu x nv."""
+    achieved in cloud units, met as 1 or 0, control points nu x nv, swarm 1 where the
+    swarm placed the knots (0: uniform knots, the classical fit)."""
     from psonurbs.formats.outputs import render_csv
 
     rows = [[*step["net_size"], step["net_size"][0] * step["net_size"][1], step["achieved"], step["achieved"] <= searched["value"],
-             step["seconds"]] for step in searched["searched"]]
+             step["seconds"], step["knots"] == "swarm"] for step in searched["searched"]]
     return render_csv(TOLERANCE_COLUMNS, np.array(rows, float).reshape(-1, len(TOLERANCE_COLUMNS)))
 
 

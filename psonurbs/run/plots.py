@@ -13,8 +13,8 @@ can be found) :func:`plot_result` writes:
 * ``STEM_basis.png``: the B-spline basis functions of both knot vectors (the paper's
   Fig. 4), knots marked;
 * ``STEM_tolerance.png``: for a fit to a tolerance (``fit.tolerance`` in the JSON), the
-  held-out error of each net the search tried against its control points, the tolerance
-  and the delivered fit marked.
+  held-out error of each net the search tried against its control points (the uniform
+  knots' and the swarm's apart), the tolerance and the delivered fit marked.
 
 Each picture has a fixed pixel size (:data:`SIZES`) and is written atomically.
 """
@@ -260,13 +260,17 @@ def plot_tolerance(tolerance: dict, title: str, path: Path) -> Path:
     """Achieved error (``fit.tolerance.searched``) against control points nu x nv, log y."""
     fig = _figure("tolerance")
     ax = fig.add_subplot(1, 1, 1)
-    steps = sorted(tolerance["searched"], key=lambda s: s["net_size"][0] * s["net_size"][1])
-    x = [s["net_size"][0] * s["net_size"][1] for s in steps]
-    y = [s["achieved"] for s in steps]
-    ax.plot(x, y, "o-", lw=1.2, label=f"held-out {tolerance['measure']} of each net tried")
-    for s, cx, cy in zip(steps, x, y):
-        ax.annotate(f"{s['net_size'][0]}x{s['net_size'][1]}", (cx, cy), textcoords="offset points",
-                    xytext=(4, 4), fontsize=8)
+    for knots, marker, words in (("uniform", "o-", "uniform knots"), ("swarm", "^--", "knots placed by the swarm")):
+        steps = sorted((s for s in tolerance["searched"] if s.get("knots", "uniform") == knots),
+                       key=lambda s: s["net_size"][0] * s["net_size"][1])
+        if not steps:
+            continue
+        x = [s["net_size"][0] * s["net_size"][1] for s in steps]
+        y = [s["achieved"] for s in steps]
+        ax.plot(x, y, marker, lw=1.2, label=f"held-out {tolerance['measure']}, {words}")
+        for s, cx, cy in zip(steps, x, y):
+            ax.annotate(f"{s['net_size'][0]}x{s['net_size'][1]}", (cx, cy), textcoords="offset points",
+                        xytext=(4, 4), fontsize=8)
     nu, nv = tolerance["net_size"]
     ax.plot([nu * nv], [tolerance["achieved"]], "s", ms=9, label=f"delivered {nu}x{nv}, over all points")
     ax.axhline(tolerance["value"], color="k", ls="--", lw=1.0, label=f"tolerance {tolerance['value']:.2e}")
