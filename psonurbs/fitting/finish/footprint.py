@@ -87,7 +87,6 @@ FOOTPRINT_SEED = 14  # ... a fixed one
 GAP_SAMPLES = 40_000  # surface samples outside the face that measure its widest gap
 EDGE_SAMPLES = 400  # samples along each edge of the surface that measure how far it runs past the data
 EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: a strip of surface without data
-SPACING_NEIGHBOURS = 6  # a point's spacing at an edge: its mean distance to this many nearest points
 NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
 
 
@@ -348,9 +347,9 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
 
 def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_SAMPLES) -> float:
     """How far the surface's edges run past the data (N, 3): the distance on the surface
-    from an open direction's edge to the nearest point, in that point's spacing (its mean
-    distance to its ``SPACING_NEIGHBOURS`` nearest neighbours), as far as the edge keeps
-    it along a stretch of ``ALPHA`` spacings; the largest over the edges.
+    from an open direction's edge to the nearest point, in that point's local spacing
+    (:func:`local_spacing`: the density's, not the step along a scan line), as far as the
+    edge keeps it along a stretch of ``ALPHA`` spacings; the largest over the edges.
 
     Along the edge of a cloud that fills its rectangle some point comes within about a
     spacing of every such stretch (a random sample's widest gap at an edge, 2 to 4
@@ -358,9 +357,10 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_
     to 1.2 spacings in the median of uniform and 50-fold graded squares, 2.2 at most over
     72 of them); a strip of surface the polish let grow past the data, where a step or a
     ridge meets the edge, or a flap held by a stray keeps its depth along it."""
-    if len(points) <= SPACING_NEIGHBOURS:
+    if len(points) <= NEIGHBOURS:
         return 0.0
     tree = cKDTree(points)
+    spacing_of = local_spacing(points)
     t = np.linspace(0.0, 1.0, samples)
     deepest = 0.0
     for k, closed, ends, other in ((0, surface.closed_u, surface.domain_u, surface.domain_v),
@@ -372,7 +372,7 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_
             uv[:, k], uv[:, 1 - k] = end, other[0] + t * (other[1] - other[0])
             at = surface.evaluate(uv[:, 0], uv[:, 1])
             gap, nearest = tree.query(at)
-            spacing = tree.query(points[nearest], k=SPACING_NEIGHBOURS + 1)[0][:, 1:].mean(axis=1)
+            spacing = spacing_of[nearest]
             step = float(np.median(np.linalg.norm(np.diff(at, axis=0), axis=1)))
             window = int(np.clip(round(ALPHA * float(np.median(spacing)) / max(step, 1e-300)), 1, samples))
             held = ndimage.minimum_filter1d(gap / np.maximum(spacing, 1e-300), window, mode="nearest")
