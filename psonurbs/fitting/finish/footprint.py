@@ -236,7 +236,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     lo, hi = np.minimum(every.min(axis=0), 0.0), np.maximum(every.max(axis=0), scale)  # the domain is [0, 1]^2
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
-    widest = max(margin, MARGIN * float(spacing[face_drawn].max()))  # the margin where the data are sparsest
+    widest = max(margin, MARGIN * float(spacing[face_drawn].max()))  # at least the margin where the data are sparsest
     pad = widest + 3.0 * cell
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
@@ -272,9 +272,11 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
 def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
                  least: float, most: float) -> np.ndarray:
     """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
-    local spacing of the nearest face point (face (M, 2) with its spacing (M,)), never
-    below ``least`` (a quarter of the median spacing, or the raster's resolution); cells
-    inside the face or farther out than ``most`` keep ``least``.
+    local spacing of the nearest face point (face (M, 2) with its spacing (M,)) over sqrt 2
+    (the nearest face point lies on its edge, its neighbours filling half a disc, which
+    reads the spacing sqrt 2 too wide: :func:`gap_scale`), never below ``least`` (a
+    quarter of the median spacing, or the raster's resolution); cells inside the face or
+    farther out than ``most`` keep ``least``.
 
     Where the data thin out (a scan's density falling with range) the true edge lies
     farther beyond the last points, in proportion to their spacing: a margin of the
@@ -283,7 +285,7 @@ def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.nda
     band = np.argwhere((field > 0.0) & (field <= most))
     if len(band) and most > least:
         nearest = cKDTree(face).query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
-        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest])
+        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest] / np.sqrt(2.0))
     return out
 
 
