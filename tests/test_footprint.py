@@ -254,3 +254,58 @@ def test_a_rectangle_whose_density_falls_fifty_fold_stays_whole_under_auto(seed)
     spacing of the data beside them, so the rectangle the data fill stays untrimmed."""
     uv = sample(lambda u, v: np.ones_like(u, bool), 3000, seed=seed, density=lambda u, v: 0.02 + 0.98 * u ** 2)
     assert fit_footprint(uv).trim is None
+
+
+def outer_reach(face, side: int) -> float:
+    """How far the face's outer loop reaches along u towards 0 (side 0) or 1 (side 1)."""
+    polygon = face.trim.polygons()[0]
+    return float(polygon[:, 0].min()) if side == 0 else float(polygon[:, 0].max())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_junk_just_past_an_edge_does_not_move_the_boundary(seed):
+    """A few strays 2 to 8 spacings past the data's edge, off the surface by 12 to 19
+    noise sigmas (beyond the robust loss's cut-off, within a spacing: the surface was
+    bent towards them), say nothing about where the data are: the face ends where the
+    data end, as without them, and the strays lie off it."""
+    surface = plane()
+    uv = sample(lambda u, v: u < 0.8, 3000, seed=seed)
+    rng = np.random.default_rng(100 + seed)
+    spacing = np.sqrt(0.8 / 3000)  # of the unit domain
+    sigma = 0.05 * spacing * 2.0  # the plane is about 2 x 1.5 units: a twentieth of the spacing on it
+    junk = np.column_stack([0.8 + rng.uniform(2, 8, 12) * spacing, rng.random(12)])
+    both = np.vstack([uv, junk])
+    distances = np.concatenate([np.abs(rng.normal(0, sigma, len(uv))), rng.uniform(12, 19, len(junk)) * sigma])
+    clean = footprint(surface, surface.evaluate(*uv.T), uv, distances[:len(uv)], True)
+    face = footprint(surface, surface.evaluate(*both.T), both, distances, True)
+    assert outer_reach(face, 1) == pytest.approx(outer_reach(clean, 1), abs=0.5 * spacing)
+    assert not face.trim.contains(junk).any()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_sparse_end_of_a_graded_cloud_stays_covered(seed):
+    """Data on u > 0.2, their density falling twentyfold towards that edge: the face
+    reaches the data's true edge to within a quarter of its spacing there (the last
+    points lie up to a spacing inside it), not of the median spacing, so the sparse
+    end's last spacings are not left uncovered."""
+    density = lambda u, v: 0.05 + 0.95 * (u - 0.2) / 0.8  # noqa: E731
+    uv = sample(lambda u, v: u > 0.2, 3000, seed=seed, density=density)
+    face = fit_footprint(uv)
+    assert face.trim is not None
+    local = np.sqrt(0.8 / 3000 / 0.05 * np.mean(0.05 + 0.95 * np.linspace(0, 1, 1001)))  # the spacing at u = 0.2
+    assert outer_reach(face, 0) <= 0.2 + 0.1 * local
+    assert outer_reach(face, 0) >= 0.2 - 0.6 * local  # and not far past it
+
+
+def test_a_strip_where_the_surface_runs_past_the_data_along_an_edge_is_trimmed():
+    """Data that fill the square but for a strip along part of its u = 1 edge (where a
+    fit's surface grew past the data: three spacings deep, a fifth of the edge long) are
+    trimmed back to the data there, though no disc of the alpha scale fits in the strip;
+    the same cloud without the strip stays whole."""
+    spacing = np.sqrt(1.0 / 4000)
+    strip = lambda u, v: (u > 1 - 3 * spacing) & (np.abs(v - 0.5) < 0.1)  # noqa: E731
+    uv = sample(lambda u, v: ~strip(u, v), 4000, seed=3)
+    face = fit_footprint(uv)
+    assert face.trim is not None and face.loops == 1
+    assert not face.trim.contains(np.array([[1 - spacing, 0.5]]))[0]
+    assert fit_footprint(sample(lambda u, v: np.ones_like(u, bool), 4000, seed=3)).trim is None

@@ -9,14 +9,16 @@ From the points' final parameters (their foot points on the fitted surface):
    density. k is large enough that a scan's lines (dense along, sparse across) give the
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
-   ``ALPHA`` times the largest spacing of their corners: a gap narrower than that is
-   sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
+   ``ALPHA`` times the spacing of their corners (their median; the densest corner's across
+   a jump in density on the surface: :func:`judging_spacing`): a gap narrower than that
+   is sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
 5. **Loops.** The piece is rasterised, its distance field contoured at a margin of a
-   quarter median spacing outside it (:func:`psonurbs.geometry.contour.contours`; a hole
+   quarter of the local spacing outside it (never less than a quarter of the median:
+   :func:`local_margin`) (:func:`psonurbs.geometry.contour.contours`; a hole
    of less area than a disc of radius ``ALPHA`` median spacings is a sampling gap and is
    covered), and each contour fitted by a closed cubic B-spline with the fewest control points (doubling)
    that keeps within half the margin of it, inside the domain, every loop simple
@@ -37,10 +39,13 @@ the cloud spread over the domain) is not the data's footprint: the surface is le
 untrimmed. ``trim: auto`` keeps the loops only when the face has a hole or leaves a real gap
 on the surface: an empty disc on the surface outside the face (bounded by the face and the
 surface's edge) of radius at least ``ALPHA`` spacings of the data beside it (as wide as
-the gaps the alpha shape opens; :func:`gap_scale`). It is measured on the surface
-(:func:`widest_gap`), so a strip of stretched surface past the data counts however thin
-it is in the domain; a cloud that fills its rectangle leaves only sampling gaps along the
-edges. ``true`` always; ``false`` never.
+the gaps the alpha shape opens; :func:`gap_scale`), or an edge of the surface running
+more than ``EDGE_OVERRUN`` spacings past the data along a stretch of it
+(:func:`edge_overrun`: a strip of surface without data, which holds no such disc until it
+is twice as deep). Both are measured on the surface (:func:`widest_gap`), so a strip
+of stretched surface past the data counts however thin it is in the domain; a cloud that
+fills its rectangle leaves only sampling gaps along the edges. ``true`` always; ``false``
+never.
 """
 from __future__ import annotations
 
@@ -69,7 +74,8 @@ from psonurbs.geometry.trim import (
 
 NEIGHBOURS = 16
 ALPHA = 2.5
-MARGIN = 0.25  # loops this many median spacings outside the points
+DENSITY_JUMP = 2.5  # corners' spacings this many fold apart on the surface: a jump in density, not a gradient
+MARGIN = 0.25  # loops this many local spacings outside the points (at least this many median spacings)
 MAX_CONTROL = 128  # control points of a cubic loop at most
 # a loop along the domain's edge runs this far outside it (of the unit domain): on the edge
 # itself an even-odd test is undecided, and the data's points held on the edge must be inside
@@ -79,6 +85,9 @@ AREA_GRID = 201  # surface area elements for the empty share
 FOOTPRINT_POINTS = 20_000  # a bigger footprint is drawn from a subsample of this many points...
 FOOTPRINT_SEED = 14  # ... a fixed one
 GAP_SAMPLES = 40_000  # surface samples outside the face that measure its widest gap
+EDGE_SAMPLES = 400  # samples along each edge of the surface that measure how far it runs past the data
+EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: a strip of surface without data
+NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
 
 
 @dataclass(frozen=True)
@@ -117,8 +126,12 @@ def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
     return r * np.sqrt(np.pi / k)
 
 
-def alpha_triangles(x: np.ndarray, spacing: np.ndarray) -> tuple[Delaunay, np.ndarray]:
-    """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles.
+def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None
+                    ) -> tuple[Delaunay, np.ndarray]:
+    """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles:
+    those whose circumradius is at most ``ALPHA`` times the spacing their corners judge
+    them by (:func:`judging_spacing` of their spacings (N,), and of their spacings on the
+    surface ``density`` (N,; default ``spacing``) for a jump in density).
 
     Four far corners are added to the points (indices N .. N+3), so that any query point
     near the data lies inside the triangulation's hull (a point-location query outside it
@@ -135,8 +148,30 @@ def alpha_triangles(x: np.ndarray, spacing: np.ndarray) -> tuple[Delaunay, np.nd
     with np.errstate(divide="ignore", invalid="ignore"):
         radius = la * lb * lc / (2.0 * area2)
     real = np.all(tri.simplices < len(x), axis=1)
-    limit = ALPHA * np.concatenate([spacing, np.zeros(4)])[tri.simplices].max(axis=1)
+    simplices = np.where(real[:, None], tri.simplices, 0)
+    density = spacing if density is None else density
+    limit = ALPHA * judging_spacing(spacing[simplices], density[simplices])
     return tri, real & np.isfinite(radius) & (radius <= limit)
+
+
+def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
+    """The spacing (T,) a triangle is judged by, from its corners' spacings (T, 3): their
+    median; where their spacings on the surface ``density`` (T, 3) differ more than
+    ``DENSITY_JUMP`` fold, the spacing of the densest corner.
+
+    The median, not the largest: a stray off the data's edge (a point of junk the surface
+    was bent to) is sparse by its own spacing, and judged by it, it would join the data
+    with every triangle it spans to them. Strays together with a data point are judged
+    across the jump at the data's spacing: where the fit was bent to a few strays, a thin
+    strip of the domain is a wide flap of surface, and strays close together in the
+    domain lie far apart on it, so the jump is measured on the surface. A scan's density
+    changes gradually (by a few per cent from a point to its neighbours where it thins out
+    with range), and a point's spacing estimate varies by less than twofold (an edge's
+    half-empty neighbourhood, a corner's)."""
+    rows = np.arange(len(corners))
+    densest = np.argmin(density, axis=1)
+    jump = density.max(axis=1) > DENSITY_JUMP * density.min(axis=1)
+    return np.where(jump, corners[rows, densest], np.median(corners, axis=1))
 
 
 def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
@@ -162,6 +197,7 @@ class Contours:
     spacing: float  # median spacing, surface length units
     tolerance: np.ndarray  # (2,) half the margin, in u and v
     widest_gap: float  # the widest empty disc outside the face, in spacings of the data beside it (gap_scale)
+    edge_overrun: float  # how far the surface's edges run past the data along a stretch, in spacings
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
@@ -179,7 +215,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     subsampled = len(drawn) < len(good)
     x = every[drawn]
     spacing = local_spacing(x)
-    tri, kept = alpha_triangles(x, spacing)
+    tri, kept = alpha_triangles(x, spacing, local_spacing(surface.evaluate(*uv[good[drawn]].T)))
     if not kept.any():
         return None
     label = pieces(tri, kept)
@@ -188,6 +224,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     piece_area = np.bincount(label[kept], weights=area[kept])
     in_face = label == int(np.argmax(piece_area))
     face_points = np.unique(tri.simplices[in_face])
+    face_drawn = face_points[face_points < len(x)]  # the drawn points on the face, for the local margin
     others = np.setdiff1d(np.unique(tri.simplices[kept & ~in_face]), face_points)
     if subsampled:  # a subsample's pieces, each point on the piece of its nearest drawn point
         face_points, others = pieces_of_every_point(every, x, spacing, face_points, others)
@@ -199,7 +236,8 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     lo, hi = np.minimum(every.min(axis=0), 0.0), np.maximum(every.max(axis=0), scale)  # the domain is [0, 1]^2
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
-    pad = margin + 3.0 * cell
+    widest = max(margin, MARGIN * float(spacing[face_drawn].max()))  # at least the margin where the data are sparsest
+    pad = widest + 3.0 * cell
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
@@ -208,15 +246,17 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
         for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1)):
             mask[at[:, 0] + di, at[:, 1] + dj] = True
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+    field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
-    empty = np.argwhere(in_domain & (field > margin))
+    empty = np.argwhere(in_domain & (field > 0.0))
     rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
     gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
                      np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, points[good[drawn]]) \
         if len(empty) and len(rim) else 0.0
-    polygons = [p / scale for p in contours(field, xs, ys, margin)]
+    overrun = edge_overrun(surface, points[good[drawn]])
+    polygons = [p / scale for p in contours(field, xs, ys, 0.0)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
         return None
@@ -226,7 +266,27 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     smallest = np.pi * (ALPHA * float(np.median(spacing))) ** 2
     holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
     return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
-                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap)
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap, overrun)
+
+
+def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
+                 least: float, most: float) -> np.ndarray:
+    """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
+    local spacing of the nearest face point (face (M, 2) with its spacing (M,)) over sqrt 2
+    (the nearest face point lies on its edge, its neighbours filling half a disc, which
+    reads the spacing sqrt 2 too wide: :func:`gap_scale`), never below ``least`` (a
+    quarter of the median spacing, or the raster's resolution); cells inside the face or
+    farther out than ``most`` keep ``least``.
+
+    Where the data thin out (a scan's density falling with range) the true edge lies
+    farther beyond the last points, in proportion to their spacing: a margin of the
+    median spacing leaves the sparse end's last spacings uncovered."""
+    out = np.full(field.shape, least)
+    band = np.argwhere((field > 0.0) & (field <= most))
+    if len(band) and most > least:
+        nearest = cKDTree(face).query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
+        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest] / np.sqrt(2.0))
+    return out
 
 
 def median_spacing(x: np.ndarray) -> float:
@@ -244,7 +304,9 @@ def median_spacing(x: np.ndarray) -> float:
 def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Which points (N,) say where the data lie on the surface: all but gross outliers,
     of robust weight 0 (:func:`psonurbs.fitting.prepare.robust_weights.biweights`) *and* farther from the
-    surface than the points' median spacing (x (N, 2): their parameters at the mean speeds).
+    surface than ``NEAR_EXACT`` of the points' median spacing (x (N, 2): their parameters
+    at the mean speeds). A stray the fit was bent towards (junk just past an edge) lies
+    beyond the cut-off but within a spacing of the surface: it must not widen the face.
 
     The robust scale of a near-exact fit (noise-free points of a shape the net almost
     holds) is the net's approximation error, so the larger residuals at a feature or
@@ -252,10 +314,10 @@ def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
     their foot points mark the data as well as any. Left out, the face shrank away from
     them, and a trimmed fit left them off it (a narrow bump's 9 of 3,000 points along an
     edge, 0.4-0.7 thousandths off a surface whose median residual was 0.024 thousandths,
-    in a cloud of diagonal 1.43)."""
+    in a cloud of diagonal 1.43 and median spacing about 26 thousandths)."""
     gross = biweights(distances) <= 0
     if gross.any():
-        gross &= distances > median_spacing(x)
+        gross &= distances > NEAR_EXACT * median_spacing(x)
     return ~gross
 
 
@@ -283,6 +345,41 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
             edge[:, k] = end
             radius = np.minimum(radius, np.linalg.norm(at - surface.evaluate(edge[:, 0], edge[:, 1]), axis=1))
     return float(np.max(radius / gap_scale(points, at)))
+
+
+def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_SAMPLES) -> float:
+    """How far the surface's edges run past the data (N, 3): the distance on the surface
+    from an open direction's edge to the nearest point, in that point's local spacing
+    (:func:`local_spacing`: the density's, not the step along a scan line), as far as the
+    edge keeps it along a stretch of ``ALPHA`` spacings; the largest over the edges.
+
+    Along the edge of a cloud that fills its rectangle some point comes within about a
+    spacing of every such stretch (a random sample's widest gap at an edge, 2 to 4
+    spacings deep, is a single gap, narrower than the stretch; the held distance is 1.0
+    to 1.2 spacings in the median of uniform and 50-fold graded squares, 2.2 at most over
+    72 of them); a strip of surface the polish let grow past the data, where a step or a
+    ridge meets the edge, or a flap held by a stray keeps its depth along it."""
+    if len(points) <= NEIGHBOURS:
+        return 0.0
+    tree = cKDTree(points)
+    spacing_of = local_spacing(points)
+    t = np.linspace(0.0, 1.0, samples)
+    deepest = 0.0
+    for k, closed, ends, other in ((0, surface.closed_u, surface.domain_u, surface.domain_v),
+                                   (1, surface.closed_v, surface.domain_v, surface.domain_u)):
+        if closed:
+            continue
+        for end in ends:
+            uv = np.empty((samples, 2))
+            uv[:, k], uv[:, 1 - k] = end, other[0] + t * (other[1] - other[0])
+            at = surface.evaluate(uv[:, 0], uv[:, 1])
+            gap, nearest = tree.query(at)
+            spacing = spacing_of[nearest]
+            step = float(np.median(np.linalg.norm(np.diff(at, axis=0), axis=1)))
+            window = int(np.clip(round(ALPHA * float(np.median(spacing)) / max(step, 1e-300)), 1, samples))
+            held = ndimage.minimum_filter1d(gap / np.maximum(spacing, 1e-300), window, mode="nearest")
+            deepest = max(deepest, float(held.max()))
+    return deepest
 
 
 def gap_scale(points: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -346,7 +443,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     found = face_contours(surface, points, uv, distances)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
-    if mode == "auto" and found.widest_gap < ALPHA and len(found.polygons) == 1:
+    if mode == "auto" and found.widest_gap < ALPHA and found.edge_overrun <= EDGE_OVERRUN and len(found.polygons) == 1:
         return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
                          found.spacing)
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
