@@ -1,0 +1,96 @@
+"""The four-sided map (psonurbs.fitting.parameters.four_sided): a flattening with four
+corners onto the unit square, its sides on the square's sides."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from psonurbs.fitting.parameters.four_sided import SCALE, SmoothLoop, corners, outline, square_map
+from psonurbs.fitting.parameters.open_patch import fill
+from psonurbs.fitting.parameters.parametrisation import unit_square
+
+
+def cone_sector(n=3000, degrees=270.0, seed=0):
+    """Area-uniform points of a cone sector, radius 0.5 -> 1 over height 1, and their
+    (angle share, ruling share) in [0, 1]^2."""
+    rng = np.random.default_rng(seed)
+    u = rng.random(n)
+    v = (np.sqrt(0.25 + 0.75 * rng.random(n)) - 0.5) / 0.5  # the density grows with the radius
+    a, r = np.radians(degrees) * u, 0.5 + 0.5 * v
+    return np.column_stack([r * np.cos(a), r * np.sin(a), v]), np.column_stack([u, v])
+
+
+def annular_sector(n=3000, degrees=120.0, radii=(1.0, 2.0), seed=0):
+    """Area-uniform plane points of an annular sector and their (angle, radius) shares."""
+    rng = np.random.default_rng(seed)
+    r0, r1 = radii
+    r = np.sqrt(r0 ** 2 + (r1 ** 2 - r0 ** 2) * rng.random(n))
+    a = np.radians(degrees) * rng.random(n)
+    return np.column_stack([r * np.cos(a), r * np.sin(a)]), np.column_stack([a / np.radians(degrees),
+                                                                              (r - r0) / (r1 - r0)])
+
+
+def affine_misfit(uv, truth):
+    """For each of u and v: the largest and the root mean square residual of the affine
+    function of one truth coordinate that fits it best, and which one that is."""
+    out = []
+    for k in range(2):
+        fits = []
+        for j in range(2):
+            design = np.column_stack([truth[:, j], np.ones(len(uv))])
+            residual = design @ np.linalg.lstsq(design, uv[:, k], rcond=None)[0] - uv[:, k]
+            fits.append((float(np.abs(residual).max()), float(np.sqrt(np.mean(residual ** 2))), j))
+        out.append(min(fits))
+    return out
+
+
+def random_footprint(name, n=3000, seed=0):
+    """Plane points filling a shape uniformly."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1.0, 1.0, (8 * n, 2))
+    r, a = np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])
+    inside = {
+        "rectangle": np.abs(p[:, 1]) < 1.0 / 3.0,
+        "trapezoid": np.abs(p[:, 1]) < 0.3 * (1.0 + 0.5 * p[:, 0]),
+        "annular sector": (r > 0.5) & (r < 1.0) & (a > 0.1) & (a < 2.8),
+        "disc": r < 1.0,
+        "ellipse": np.hypot(p[:, 0], 2.0 * p[:, 1]) < 1.0,
+        "five-pointed star": r < 0.55 + 0.45 * np.cos(5.0 * a),
+        "L": (p[:, 0] < 0.0) | (p[:, 1] < 0.0),
+        "triangle": (p[:, 1] > -0.8) & (p[:, 1] < 1.0 - 2.0 * np.abs(p[:, 0])),
+    }[name]
+    return p[inside][:n]
+
+
+@pytest.mark.parametrize("name, four", [("rectangle", True), ("trapezoid", True), ("annular sector", True),
+                                        ("disc", False), ("ellipse", False), ("five-pointed star", False),
+                                        ("L", False), ("triangle", False)])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_four_corners_are_found_on_a_ragged_random_boundary(name, four, seed):
+    """The alpha shape's boundary of a random sample is ragged at the scale of a spacing;
+    at the scale of several spacings only real corners turn 45 degrees or more. A
+    rectangle, a trapezoid and an annular sector have four convex ones; a disc and an
+    ellipse none; a star, an L and a triangle other counts."""
+    x = random_footprint(name, seed=seed)
+    found = outline(x)
+    h = SCALE * found.spacing
+    where = corners(SmoothLoop.of(x[found.loop], h / 3.0, h / 12.0), h)
+    assert where.four_sided == four, (name, np.degrees(where.turning).round())
+    if four:
+        assert np.all(np.degrees(where.turning) > 50.0)
+
+
+def test_an_annular_sector_maps_its_arcs_and_radii_onto_the_squares_sides():
+    """In the plane, an annular sector (radii 1 and 2, 120 degrees) goes onto the square
+    with its radii at u = 0 and 1 and its arcs at v = 0 and 1: u is the angle and v the
+    radius, each up to an affine map, to 2% of the range at the ragged edge's worst point, and
+    the points fill the square. Its minimum-area rectangle leaves a quarter empty."""
+    x, truth = annular_sector()
+    square, turns = square_map(x)
+    assert square is not None, turns
+    uv = square.place(x)
+    (u_max, u_rms, u_is), (v_max, v_rms, v_is) = affine_misfit(uv, truth)
+    assert (u_is, v_is) == (0, 1)  # u the angle, v the radius (the arcs are the longer sides)
+    assert u_max < 0.02 and v_max < 0.02 and u_rms < 0.004 and v_rms < 0.004, (u_max, u_rms, v_max, v_rms)
+    assert fill(uv, 16) > 0.97
+    assert fill(unit_square(x), 16) < 0.8
