@@ -1,11 +1,22 @@
 """The four-sided map (psonurbs.fitting.parameters.four_sided): a flattening with four
-corners onto the unit square, its sides on the square's sides."""
+corners onto the unit square, its sides on the square's sides; any other footprint left
+to the flattening's rectangle (psonurbs.fitting.parameters.intrinsic)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_intrinsic import cylinder_section, spherical_cap
 
+from psonurbs.fitting.parameters import four_sided
+from psonurbs.fitting.parameters import intrinsic as intrinsic_module
 from psonurbs.fitting.parameters.four_sided import SCALE, SmoothLoop, corners, outline, square_map
+from psonurbs.fitting.parameters.intrinsic import (
+    extended,
+    geodesic_embedding,
+    parametrise_intrinsic,
+    rigid_embedding,
+    surface_graph,
+)
 from psonurbs.fitting.parameters.open_patch import fill
 from psonurbs.fitting.parameters.parametrisation import unit_square
 
@@ -94,3 +105,70 @@ def test_an_annular_sector_maps_its_arcs_and_radii_onto_the_squares_sides():
     assert u_max < 0.02 and v_max < 0.02 and u_rms < 0.004 and v_rms < 0.004, (u_max, u_rms, v_max, v_rms)
     assert fill(uv, 16) > 0.97
     assert fill(unit_square(x), 16) < 0.8
+
+
+def test_a_cone_sectors_first_parameters_are_its_angle_and_its_ruling():
+    """A 270-degree cone sector unrolls to an annular sector; its first parameters are its
+    angle and its position along the ruling, each up to an affine map (to 2% of the range
+    at the ragged edge's worst point, 0.4% in the mean). The rectangle of the flattening is
+    47% of the range off the ruling."""
+    pts, truth = cone_sector(seed=0)
+    par = parametrise_intrinsic(pts)
+    assert par.info["sides"] == "four", par.info
+    (u_max, u_rms, u_is), (v_max, v_rms, v_is) = affine_misfit(par.uv, truth)
+    assert {u_is, v_is} == {0, 1}
+    angle, ruling = ((u_max, u_rms), (v_max, v_rms)) if u_is == 0 else ((v_max, v_rms), (u_max, u_rms))
+    assert angle[0] < 0.03 and angle[1] < 0.006, angle
+    assert ruling[0] < 0.04 and ruling[1] < 0.008, ruling
+    graph = surface_graph(pts)
+    flat = rigid_embedding(graph, geodesic_embedding(graph))
+    before = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
+    assert max(affine_misfit(before, truth)[k][0] for k in range(2)) > 0.3
+
+
+def test_a_rectangle_footprint_keeps_nearly_the_flattenings_rectangle():
+    """A curl of 250 degrees unrolls to a rectangle: the four-sided map is the flattening's
+    rectangle but for the ragged edge (to 4% of the range at its worst point, 0.6% in the
+    mean), in the same directions."""
+    pts, _ = cylinder_section(n=3000, degrees=250.0)
+    graph = surface_graph(pts)
+    par = parametrise_intrinsic(pts, graph)
+    assert par.info["sides"] == "four"
+    flat = rigid_embedding(graph, geodesic_embedding(graph))
+    today = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
+    gap = np.abs(par.uv - today)
+    assert gap.max() < 0.05 and np.sqrt(np.mean(gap ** 2)) < 0.007, (gap.max(), np.sqrt(np.mean(gap ** 2)))
+
+
+@pytest.mark.parametrize("cloud", [spherical_cap, lambda: spherical_cap(polar_degrees=60.0, seed=4)])
+def test_a_disc_footprint_is_left_to_the_flattenings_rectangle(cloud):
+    """A cap unrolls to a disc, which has no corners: its parameters are the flattening's
+    rectangle, exactly."""
+    pts = cloud()
+    graph = surface_graph(pts)
+    par = parametrise_intrinsic(pts, graph)
+    assert par.info["sides"] == "free" and par.info["corners_degrees"] == []
+    flat = rigid_embedding(graph, geodesic_embedding(graph))
+    today = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
+    np.testing.assert_array_equal(par.uv, today)
+
+
+def test_a_four_sided_map_that_folds_gives_way_to_the_flattening(monkeypatch):
+    """Where the four-sided map would fold more than the flattening (here: made to, by
+    mirroring u on half the footprint), the flattening's rectangle is kept, and the
+    fold is recorded."""
+    def folding(x):
+        square, turns = square_map(x)
+        uv = square.uv.copy()
+        half = x[:, 0] > np.median(x[:, 0])
+        uv[half, 0] = 1.0 - uv[half, 0]
+        return four_sided.SquareMap(square.outline, square.x, uv, square.jacobians), turns
+
+    pts, _ = cone_sector(n=1500)
+    monkeypatch.setattr(intrinsic_module, "square_map", folding)
+    graph = surface_graph(pts)
+    par = parametrise_intrinsic(pts, graph)
+    assert par.info["sides"] == "free" and par.info["four_sided_folded_share"] > 0.1
+    flat = rigid_embedding(graph, geodesic_embedding(graph))
+    today = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
+    np.testing.assert_array_equal(par.uv, today)

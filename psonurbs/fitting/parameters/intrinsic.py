@@ -33,8 +33,13 @@ parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the p
 
 Cost: O(N log M) for the nearest sample point of every point, the rest on the M <= ``EMBEDDED_POINTS``.
 
-The plane coordinates are then scaled to the unit square along the rectangle they fill
-best, as a plane projection is (:func:`psonurbs.fitting.parameters.parametrisation.unit_square`).
+The plane coordinates then go onto the unit square. A flattening with four corners (a
+rectangle, a trapezoid, an annular sector: a cone's or a band's) is mapped with its four
+sides on the square's sides (:mod:`psonurbs.fitting.parameters.four_sided`), unless that
+map folds where the flattening does not; any other (a disc, a blob, more or fewer
+corners) is scaled to the square along the rectangle it fills best, as a plane projection
+is (:func:`psonurbs.fitting.parameters.parametrisation.unit_square`). ``info["sides"]``
+says which: ``four`` or ``free``.
 """
 from __future__ import annotations
 
@@ -49,6 +54,7 @@ from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish.polish import AndersonMixing
 
+from .four_sided import aligned, square_map
 from .parametrisation import Parametrisation, unit_square
 
 NEIGHBOURS = 10  # graph degree: enough for a connected, rigid graph, few enough to stay local
@@ -56,6 +62,9 @@ EMBEDDED_POINTS = 5000  # points embedded (the others follow by their local fram
 LANDMARKS = 24
 RIGID_ROUNDS = 30  # local/global rounds, Anderson-mixed: a 250-degree cylinder section is unrolled to 6e-5 RMS
 CONVERGED = 1e-9  # relative energy drop below which the rounds stop
+# of the points: the four-sided map may fold on this many more than the flattening (a
+# ragged boundary's vertex or two), the share of a fit's surface its self-check lets fold
+FOLD_MARGIN = 0.002
 
 
 @dataclass(frozen=True)
@@ -324,12 +333,21 @@ def embedding_sample(n: int, size: int = EMBEDDED_POINTS) -> np.ndarray:
 def parametrise_intrinsic(points: np.ndarray, graph: SurfaceGraph | None = None,
                           rounds: int = RIGID_ROUNDS) -> Parametrisation:
     """First (u, v) in [0, 1]^2 for every point of an open surface from its own geometry
-    (see the module docstring). ``graph`` may be given (built on a sample of ``points``)."""
+    (see the module docstring). ``graph`` may be given (built on a sample of ``points``).
+    The four-sided map keeps the directions of the rectangle's (:func:`aligned`)."""
     if graph is None:
         graph = surface_graph(points[embedding_sample(len(points))])
     flattening = rigid_embedding(graph, geodesic_embedding(graph), rounds)
     flat = extended(graph, flattening.positions, flattening.rotations, points)
     uv = unit_square(flat, reference=flattening.positions[graph.component])  # the embedded points' rectangle
-    return Parametrisation(uv, {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
-                                "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds,
-                                "folded_share": reversed_share(graph, flattening.positions)})
+    folded = reversed_share(graph, flattening.positions)
+    info = {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
+            "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds, "folded_share": folded}
+    square, corners = square_map(flattening.positions[graph.component])
+    info["corners_degrees"] = corners
+    if square is None:
+        return Parametrisation(uv, {**info, "sides": "free"})
+    four_folded = reversed_share(graph, square.place(flattening.positions))
+    if four_folded > folded + FOLD_MARGIN:  # the sides' map folds where the flattening did not
+        return Parametrisation(uv, {**info, "sides": "free", "four_sided_folded_share": four_folded})
+    return Parametrisation(aligned(square.place(flat), uv), {**info, "sides": "four", "folded_share": four_folded})
