@@ -11,7 +11,7 @@ from psonurbs.config import config_from_dict
 from psonurbs.fitting.parameters import four_sided
 from psonurbs.fitting.parameters import intrinsic as intrinsic_module
 from psonurbs.fitting.parameters.coarse_to_fine import coarse_to_fine
-from psonurbs.fitting.parameters.four_sided import SCALE, SmoothLoop, corners, outline, square_map
+from psonurbs.fitting.parameters.four_sided import SCALE, SmoothLoop, aligned, corners, outline, square_map
 from psonurbs.fitting.parameters.intrinsic import (
     extended,
     geodesic_embedding,
@@ -19,8 +19,7 @@ from psonurbs.fitting.parameters.intrinsic import (
     rigid_embedding,
     surface_graph,
 )
-from psonurbs.fitting.parameters.open_patch import fill
-from psonurbs.fitting.parameters.parametrisation import unit_square
+from psonurbs.fitting.parameters.parametrisation import fill, unit_square
 from psonurbs.fitting.pipeline import fit_points
 from psonurbs.geometry.net import NetLayout
 
@@ -119,6 +118,7 @@ def test_a_cone_sectors_first_parameters_are_its_angle_and_its_ruling():
     pts, truth = cone_sector(seed=0)
     par = parametrise_intrinsic(pts)
     assert par.info["sides"] == "four", par.info
+    assert par.info["fill_rectangle"] < 0.75 and par.info["fill_four_sided"] == 1.0
     (u_max, u_rms, u_is), (v_max, v_rms, v_is) = affine_misfit(par.uv, truth)
     assert {u_is, v_is} == {0, 1}
     angle, ruling = ((u_max, u_rms), (v_max, v_rms)) if u_is == 0 else ((v_max, v_rms), (u_max, u_rms))
@@ -130,17 +130,21 @@ def test_a_cone_sectors_first_parameters_are_its_angle_and_its_ruling():
     assert max(affine_misfit(before, truth)[k][0] for k in range(2)) > 0.3
 
 
-def test_a_rectangle_footprint_keeps_nearly_the_flattenings_rectangle():
-    """A curl of 250 degrees unrolls to a rectangle: the four-sided map is the flattening's
-    rectangle but for the ragged edge (to 4% of the range at its worst point, 0.6% in the
-    mean), in the same directions."""
+def test_a_rectangle_footprint_keeps_the_flattenings_rectangle():
+    """A curl of 250 degrees unrolls to a rectangle, which fills its square: its sides are
+    on the square's already, and the flattening's rectangle is kept, exactly. The four-
+    sided map would be the rectangle but for the ragged edge (to 4% of the range at its
+    worst point, 0.6% in the mean), in the same directions."""
     pts, _ = cylinder_section(n=3000, degrees=250.0)
     graph = surface_graph(pts)
     par = parametrise_intrinsic(pts, graph)
-    assert par.info["sides"] == "four"
+    assert par.info["sides"] == "rectangle" and len(par.info["corners_degrees"]) == 4, par.info
+    assert par.info["fill_rectangle"] == 1.0
     flat = rigid_embedding(graph, geodesic_embedding(graph))
     today = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
-    gap = np.abs(par.uv - today)
+    np.testing.assert_array_equal(par.uv, today)
+    square, _ = square_map(flat.positions[graph.component])
+    gap = np.abs(aligned(square.place(extended(graph, flat.positions, flat.rotations, pts)), today) - today)
     assert gap.max() < 0.05 and np.sqrt(np.mean(gap ** 2)) < 0.007, (gap.max(), np.sqrt(np.mean(gap ** 2)))
 
 
@@ -159,13 +163,13 @@ def test_a_disc_footprint_is_left_to_the_flattenings_rectangle(cloud):
 
 def test_a_four_sided_map_that_folds_gives_way_to_the_flattening(monkeypatch):
     """Where the four-sided map would fold more than the flattening (here: made to, by
-    mirroring u on half the footprint), the flattening's rectangle is kept, and the
-    fold is recorded."""
+    mirroring v on the middle third of u, which still fills the square), the flattening's
+    rectangle is kept, and the fold is recorded."""
     def folding(x):
         square, turns = square_map(x)
         uv = square.uv.copy()
-        half = x[:, 0] > np.median(x[:, 0])
-        uv[half, 0] = 1.0 - uv[half, 0]
+        band = (uv[:, 0] > 1.0 / 3.0) & (uv[:, 0] < 2.0 / 3.0)
+        uv[band, 1] = 1.0 - uv[band, 1]
         return four_sided.SquareMap(square.outline, square.x, uv, square.jacobians), turns
 
     pts, _ = cone_sector(n=1500)

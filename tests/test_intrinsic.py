@@ -17,8 +17,8 @@ from psonurbs.fitting.parameters.intrinsic import (
     rigid_embedding,
     surface_graph,
 )
-from psonurbs.fitting.parameters.open_patch import fill, parametrise_open_patch
-from psonurbs.fitting.parameters.parametrisation import unit_square
+from psonurbs.fitting.parameters.open_patch import parametrise_open_patch
+from psonurbs.fitting.parameters.parametrisation import fill, unit_square
 from psonurbs.fitting.parameters.plane import parametrise_open
 from psonurbs.fitting.parameters.topology import choose_topology
 from psonurbs.geometry.basis import uniform_inner_knots
