@@ -348,8 +348,10 @@ def boundary_values(loop: SmoothLoop, found: Corners, spacing: float) -> np.ndar
 
 def cotangent_weights(x: np.ndarray, faces: np.ndarray, scale: np.ndarray | None = None) -> sp.csr_array:
     """(M, M) symmetric weights w_ij = sum over the faces (T, 3) at edge ij of
-    scale_t cot(angle opposite ij) / 2 (scale (T,), 1 if None), cut at 0 (a hole's edge has
-    one face, whose angle there may be obtuse)."""
+    scale_t cot(angle opposite ij) / 2 (scale (T,), 1 if None), kept just above 0: a hole's
+    edge has one face, whose angle there may be obtuse, and a face held on one side of the
+    square has no gradient; every edge of the piece keeps it connected, so the solve has
+    one answer."""
     rows, cols, vals = [], [], []
     for k in range(3):
         i, j, o = faces[:, (k + 1) % 3], faces[:, (k + 2) % 3], faces[:, k]
@@ -362,7 +364,7 @@ def cotangent_weights(x: np.ndarray, faces: np.ndarray, scale: np.ndarray | None
     m = len(x)
     weights = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m))
     weights.sum_duplicates()
-    weights.data = np.maximum(weights.data, 0.0)
+    weights.data = np.maximum(weights.data, 1e-9 * float(np.abs(weights.data).mean()))
     return weights
 
 
