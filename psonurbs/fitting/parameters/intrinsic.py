@@ -61,8 +61,9 @@ EMBEDDED_POINTS = 5000  # points embedded (the others follow by their local fram
 LANDMARKS = 24
 RIGID_ROUNDS = 30  # local/global rounds, Anderson-mixed: a 250-degree cylinder section is unrolled to 6e-5 RMS
 CONVERGED = 1e-9  # relative energy drop below which the rounds stop
-# of the points: the four-sided map may fold on this many more than the flattening (a
-# ragged boundary's vertex or two), the share of a fit's surface its self-check lets fold
+# of the points: the four-sided map may fold on this many more than the flattening, the
+# share of a fit's surface its self-check lets fold. A ragged boundary's vertex or two can
+# turn over (a 270-degree cone sector: 1 of 4,000 points), which is no fold of the map.
 FOLD_MARGIN = 0.002
 
 
