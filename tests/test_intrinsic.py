@@ -9,6 +9,7 @@ from conftest import franke
 from psonurbs.config import config_from_dict
 from psonurbs.fitting.parameters.coarse_to_fine import coarse_to_fine, ladder
 from psonurbs.fitting.parameters.intrinsic import (
+    extended,
     geodesic_embedding,
     parametrise_intrinsic,
     reversed_points,
@@ -16,7 +17,8 @@ from psonurbs.fitting.parameters.intrinsic import (
     rigid_embedding,
     surface_graph,
 )
-from psonurbs.fitting.parameters.open_patch import fill, parametrise_open_patch
+from psonurbs.fitting.parameters.open_patch import parametrise_open_patch
+from psonurbs.fitting.parameters.parametrisation import fill, unit_square
 from psonurbs.fitting.parameters.plane import parametrise_open
 from psonurbs.fitting.parameters.topology import choose_topology
 from psonurbs.geometry.basis import uniform_inner_knots
@@ -94,11 +96,14 @@ def test_a_cylinder_section_is_unrolled_isometrically():
 
 
 def test_the_unit_square_parameters_are_an_affine_image_of_arc_length_and_height():
-    """Scaled to the unit square along the rectangle the flattening fills, the parameters
-    are (arc length, height) up to an affine map to 0.5% (the rectangle of a random
-    sample may turn by a fraction of a degree), with u along the longer side (the arc)."""
+    """Scaled to the unit square along the rectangle the flattening fills (the parameters
+    of a footprint that is not four-sided), the parameters are (arc length, height) up to
+    an affine map to 0.5% (the rectangle of a random sample may turn by a fraction of a
+    degree), with u along the longer side (the arc)."""
     pts, truth = cylinder_section(n=3000, degrees=250.0)
-    uv = parametrise_intrinsic(pts).uv
+    graph = surface_graph(pts)
+    flat = rigid_embedding(graph, geodesic_embedding(graph))
+    uv = unit_square(extended(graph, flat.positions, flat.rotations, pts), flat.positions[graph.component])
     design = np.column_stack([truth, np.ones(len(pts))])
     coeffs = np.linalg.lstsq(design, uv, rcond=None)[0]
     assert np.abs(design @ coeffs - uv).max() < 5e-3

@@ -33,8 +33,12 @@ parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the p
 
 Cost: O(N log M) for the nearest sample point of every point, the rest on the M <= ``EMBEDDED_POINTS``.
 
-The plane coordinates are then scaled to the unit square along the rectangle they fill
-best, as a plane projection is (:func:`psonurbs.fitting.parameters.parametrisation.unit_square`).
+The plane coordinates then go onto the unit square, scaled along the rectangle they fill
+best, as a plane projection is (:func:`psonurbs.fitting.parameters.parametrisation.unit_square`);
+but a flattening with four corners that its rectangle does not fill (a trapezoid, an
+annular sector: a cone's or a band's) is mapped with its four sides on the square's
+sides (:mod:`psonurbs.fitting.parameters.four_sided`), unless that map folds where the
+flattening does not (:func:`intrinsic_parameters`).
 """
 from __future__ import annotations
 
@@ -49,13 +53,18 @@ from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish.polish import AndersonMixing
 
-from .parametrisation import Parametrisation, unit_square
+from .four_sided import aligned, square_map
+from .parametrisation import FILL_MARGIN, Parametrisation, fill, fill_cells, unit_square
 
 NEIGHBOURS = 10  # graph degree: enough for a connected, rigid graph, few enough to stay local
 EMBEDDED_POINTS = 5000  # points embedded (the others follow by their local frame)
 LANDMARKS = 24
 RIGID_ROUNDS = 30  # local/global rounds, Anderson-mixed: a 250-degree cylinder section is unrolled to 6e-5 RMS
 CONVERGED = 1e-9  # relative energy drop below which the rounds stop
+# of the points: the four-sided map may fold on this many more than the flattening, the
+# share of a fit's surface its self-check lets fold. A ragged boundary's vertex or two can
+# turn over (a 270-degree cone sector: 1 of 4,000 points), which is no fold of the map.
+FOLD_MARGIN = 0.002
 
 
 @dataclass(frozen=True)
@@ -321,15 +330,56 @@ def embedding_sample(n: int, size: int = EMBEDDED_POINTS) -> np.ndarray:
     return np.sort(np.random.default_rng(0).choice(n, size, replace=False))
 
 
-def parametrise_intrinsic(points: np.ndarray, graph: SurfaceGraph | None = None,
-                          rounds: int = RIGID_ROUNDS) -> Parametrisation:
+@dataclass(frozen=True)
+class Intrinsic:
+    """The intrinsic parameters, and the flattening's rectangle (the parameters themselves
+    unless the four-sided map was taken)."""
+
+    par: Parametrisation
+    rectangle: np.ndarray  # (N, 2) the flattening scaled onto [0, 1]^2 along its rectangle
+
+
+def intrinsic_parameters(points: np.ndarray, graph: SurfaceGraph | None = None,
+                         rounds: int = RIGID_ROUNDS) -> Intrinsic:
     """First (u, v) in [0, 1]^2 for every point of an open surface from its own geometry
-    (see the module docstring). ``graph`` may be given (built on a sample of ``points``)."""
+    (see the module docstring), and the flattening's rectangle. ``graph`` may be given
+    (built on a sample of ``points``).
+
+    The four-sided map is taken when it fills at least ``FILL_MARGIN`` more of the square
+    than the rectangle (on the embedded points) and folds on at most ``FOLD_MARGIN`` more
+    of them than the flattening; it keeps the rectangle's directions (:func:`aligned`).
+    A rectangle that fills the square has its sides on the square's already: the map
+    would only add its ragged edge (``info["sides"]``: ``rectangle``; ``four`` when the map
+    is taken, ``free`` for any other footprint or a map that folds)."""
     if graph is None:
         graph = surface_graph(points[embedding_sample(len(points))])
     flattening = rigid_embedding(graph, geodesic_embedding(graph), rounds)
     flat = extended(graph, flattening.positions, flattening.rotations, points)
-    uv = unit_square(flat, reference=flattening.positions[graph.component])  # the embedded points' rectangle
-    return Parametrisation(uv, {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
-                                "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds,
-                                "folded_share": reversed_share(graph, flattening.positions)})
+    embedded = flattening.positions[graph.component]
+    uv = unit_square(flat, reference=embedded)  # the embedded points' rectangle
+    folded = reversed_share(graph, flattening.positions)
+    info = {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
+            "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds, "folded_share": folded}
+    square, corners = square_map(embedded)
+    info["corners_degrees"] = corners
+    if square is None:
+        return Intrinsic(Parametrisation(uv, {**info, "sides": "free"}), uv)
+    cells = fill_cells(len(embedded))
+    on_embedded = square.place(flattening.positions)
+    fills = {"fill_rectangle": fill(unit_square(embedded), cells),
+             "fill_four_sided": fill(on_embedded[graph.component], cells)}
+    if fills["fill_four_sided"] < fills["fill_rectangle"] + FILL_MARGIN:
+        return Intrinsic(Parametrisation(uv, {**info, "sides": "rectangle", **fills}), uv)
+    four_folded = reversed_share(graph, on_embedded)
+    if four_folded > folded + FOLD_MARGIN:  # the sides' map folds where the flattening did not
+        return Intrinsic(Parametrisation(uv, {**info, "sides": "free", **fills,
+                                              "four_sided_folded_share": four_folded}), uv)
+    return Intrinsic(Parametrisation(aligned(square.place(flat), uv),
+                                     {**info, "sides": "four", **fills, "folded_share": four_folded}), uv)
+
+
+def parametrise_intrinsic(points: np.ndarray, graph: SurfaceGraph | None = None,
+                          rounds: int = RIGID_ROUNDS) -> Parametrisation:
+    """First (u, v) in [0, 1]^2 for every point of an open surface from its own geometry
+    (:func:`intrinsic_parameters`). ``graph`` may be given (built on a sample of ``points``)."""
+    return intrinsic_parameters(points, graph, rounds).par

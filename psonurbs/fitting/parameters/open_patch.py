@@ -13,11 +13,15 @@ shows that the projection misrepresents the surface:
   is of area (each point weighted by the square of its neighbourhood radius), so
   uneven sampling does not hide a sparse steep part; ``|n . d|`` needs no orientation,
   so a stray's wrong normal counts only as itself.
-* **the footprint fills less**: the intrinsic parameters occupy at least ``FILL_MARGIN``
-  more of the cells of the unit square than the projection (a twisted strip projects
-  onto a bow tie: the square's corners would be extrapolated). Little is enough: a strip
-  twisted by 90 degrees leaves 5% of the square empty, and its fit over the plane is 25
-  times farther from the true surface than over the intrinsic parameters.
+* **the footprint fills less**: the flattening, scaled along its rectangle, occupies at
+  least ``FILL_MARGIN`` more of the cells of the unit square than the projection (a
+  twisted strip projects onto a bow tie: the square's corners would be extrapolated).
+  Little is enough: a strip twisted by 90 degrees leaves 5% of the square empty, and its
+  fit over the plane is 25 times farther from the true surface than over the intrinsic
+  parameters. The rectangle is judged, not the four-sided map the intrinsic parameters
+  may take instead (:mod:`psonurbs.fitting.parameters.four_sided`): that fills the square
+  by construction, and would take a height field over a trapezoid or an annular sector
+  from the plane (a 220-degree cone section over its axis plane: twice the plane's rmse).
 
 A height field over a rectangle, steep flanks and all, projects onto exactly its
 rectangle, which the unrolled surface (whose boundary curves where the surface
@@ -32,14 +36,13 @@ import numpy as np
 
 from psonurbs.geometry import compiled
 
-from .intrinsic import embedding_sample, parametrise_intrinsic, surface_graph
-from .parametrisation import Parametrisation, cell_counts
+from .intrinsic import embedding_sample, intrinsic_parameters, parametrise_intrinsic, surface_graph
+from .parametrisation import FILL_MARGIN, Parametrisation, fill, fill_cells
 from .plane import parametrise_open
 
 METHODS = ("auto", "plane", "intrinsic")
 EDGE_ON = float(np.cos(np.radians(80.0)))  # |n . d| below this: seen edge-on, squeezed over 5.8 times
 EDGE_ON_SHARE = 0.05  # of the surface's area that may be seen edge-on (noise, strays, a rim)
-FILL_MARGIN = 0.03  # of the unit square's cells: above the jitter of a sampled boundary (8 of 256 cells)
 
 
 @dataclass(frozen=True)
@@ -64,11 +67,6 @@ def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray)
     return float(np.sum(areas[np.abs(normals @ direction) < EDGE_ON]) / np.sum(areas))
 
 
-def fill(uv: np.ndarray, cells: int) -> float:
-    """Share of the cells x cells grid on [0, 1]^2 holding a point."""
-    return float(np.mean(cell_counts(uv, cells) > 0))
-
-
 def choose(edge_on: float, fill_plane: float, fill_intrinsic: float) -> OpenChoice:
     if edge_on > EDGE_ON_SHARE:
         return OpenChoice(edge_on, fill_plane, fill_intrinsic, "intrinsic",
@@ -91,11 +89,11 @@ def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametr
         return parametrise_intrinsic(points, graph)
     # the two candidates are independent: side by side in threads
     intrinsic, plane = compiled.in_order(lambda candidate: candidate(),
-                                         [lambda: parametrise_intrinsic(points, graph), lambda: parametrise_open(points)])
+                                         [lambda: intrinsic_parameters(points, graph), lambda: parametrise_open(points)])
     areas = graph.lengths[:, -1] ** 2  # ~ the surface area each point stands for
     part = graph.component
-    cells = int(np.clip(np.sqrt(len(sample) / 8.0), 2, 16))
+    cells = fill_cells(len(sample))
     choice = choose(edge_on_share(graph.normals[part], areas[part], np.asarray(plane.info["normal"])),
-                    fill(plane.uv[sample], cells), fill(intrinsic.uv[sample], cells))
-    chosen = intrinsic if choice.method == "intrinsic" else plane
+                    fill(plane.uv[sample], cells), fill(intrinsic.rectangle[sample], cells))
+    chosen = intrinsic.par if choice.method == "intrinsic" else plane
     return Parametrisation(chosen.uv, {**chosen.info, "choice": choice.to_dict()})

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+FILL_MARGIN = 0.03  # of the unit square's cells: above the jitter of a sampled boundary (8 of 256 cells)
+
 
 @dataclass
 class Parametrisation:
@@ -55,6 +57,17 @@ def cell_counts(uv: np.ndarray, cells: int) -> np.ndarray:
     """How many points fall in each cell of the cells x cells grid on [0, 1]^2."""
     idx = np.minimum((uv * cells).astype(int), cells - 1)
     return np.bincount(idx[:, 0] * cells + idx[:, 1], minlength=cells * cells)
+
+
+def fill_cells(points: int) -> int:
+    """The grid on which ``points`` parameters' :func:`fill` is judged: about 8 points a
+    cell, 2 to 16 cells a side."""
+    return int(np.clip(np.sqrt(points / 8.0), 2, 16))
+
+
+def fill(uv: np.ndarray, cells: int) -> float:
+    """Share of the cells x cells grid on [0, 1]^2 holding a point."""
+    return float(np.mean(cell_counts(uv, cells) > 0))
 
 
 def unit_square(q: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
