@@ -9,8 +9,8 @@ From the points' final parameters (their foot points on the fitted surface):
    density. k is large enough that a scan's lines (dense along, sparse across) give the
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
-   ``ALPHA`` times the spacing of their corners (their median; the densest corner's across
-   a jump in density on the surface: :func:`judging_spacing`): a gap narrower than that
+   ``ALPHA`` times the spacing of their corners (their median; the smallest across a jump
+   in density on the surface: :func:`judging_spacing`): a gap narrower than that
    is sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
@@ -29,8 +29,8 @@ subsample of them (:func:`well_spread`: one per cell of a grid of about that man
 so a sparse region keeps all its points), steps 2-5 at the subsample's spacing (the
 resolution of the holes, pieces and margin; the raster is as fine as for all the points,
 ``MAX_RASTER``): every point then joins the piece of its nearest drawn point when within
-the alpha scale of it, and the raster cells around every point of the face are added to
-it, so that the loops hold them all (the subsample's own boundary lies inside the data's
+the alpha scale of it, and the raster cells along the way from every point of the face to
+that drawn point are added to it (:func:`mark_joined`), so that the loops hold them all (the subsample's own boundary lies inside the data's
 by a fraction of its spacing). The points off the face, the fragments' points and the
 distances are still those of every point.
 
@@ -126,6 +126,23 @@ def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
     return r * np.sqrt(np.pi / k)
 
 
+def planar_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
+    """The local spacing of points x (N, 2) in the plane, s_i = r_k sqrt(pi f_i / k), with
+    f_i the share of the disc of radius r_k its k neighbours fill: 1 less the widest angle
+    between them around it over 2 pi (about 1 inside, 1/2 on an edge, 1/4 at a corner).
+
+    At the data's edge the neighbours fill half a disc, and r_k sqrt(pi / k) reads the
+    spacing sqrt 2 too wide: along a slot or a hole the alpha shape would judge its rim's
+    triangles too leniently and bridge the gap."""
+    k = min(k, len(x) - 1)
+    r, near = cKDTree(x).query(x, k=k + 1)
+    offset = x[near[:, 1:]] - x[:, None, :]
+    angle = np.sort(np.arctan2(offset[..., 1], offset[..., 0]), axis=1)
+    gaps = np.diff(np.concatenate([angle, angle[:, :1] + 2.0 * np.pi], axis=1), axis=1)
+    filled = np.clip(1.0 - gaps.max(axis=1) / (2.0 * np.pi), 0.25, 1.0)
+    return r[:, -1] * np.sqrt(np.pi * filled / k)
+
+
 def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None
                     ) -> tuple[Delaunay, np.ndarray]:
     """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles:
@@ -157,7 +174,7 @@ def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | No
 def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
     """The spacing (T,) a triangle is judged by, from its corners' spacings (T, 3): their
     median; where their spacings on the surface ``density`` (T, 3) differ more than
-    ``DENSITY_JUMP`` fold, the spacing of the densest corner.
+    ``DENSITY_JUMP`` fold, the smallest (the dense side's).
 
     The median, not the largest: a stray off the data's edge (a point of junk the surface
     was bent to) is sparse by its own spacing, and judged by it, it would join the data
@@ -168,10 +185,8 @@ def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
     changes gradually (by a few per cent from a point to its neighbours where it thins out
     with range), and a point's spacing estimate varies by less than twofold (an edge's
     half-empty neighbourhood, a corner's)."""
-    rows = np.arange(len(corners))
-    densest = np.argmin(density, axis=1)
     jump = density.max(axis=1) > DENSITY_JUMP * density.min(axis=1)
-    return np.where(jump, corners[rows, densest], np.median(corners, axis=1))
+    return np.where(jump, corners.min(axis=1), np.median(corners, axis=1))
 
 
 def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
@@ -209,12 +224,12 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
                   ) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
-    good = np.flatnonzero(marks_the_data(distances, uv * scale))
+    good = np.flatnonzero(marks_the_data(distances, uv, scale))
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
     x = every[drawn]
-    spacing = local_spacing(x)
+    spacing = planar_spacing(x)
     tri, kept = alpha_triangles(x, spacing, local_spacing(surface.evaluate(*uv[good[drawn]].T)))
     if not kept.any():
         return None
@@ -241,10 +256,8 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
-    if subsampled:  # and the four cell centres around every point on the face
-        at = np.floor((every[face_points] - [xs[0], ys[0]]) / cell).astype(int)
-        for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1)):
-            mask[at[:, 0] + di, at[:, 1] + dj] = True
+    if subsampled:  # and every point on the face, joined to the drawn point of its piece
+        mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
@@ -272,11 +285,10 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
 def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
                  least: float, most: float) -> np.ndarray:
     """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
-    local spacing of the nearest face point (face (M, 2) with its spacing (M,)) over sqrt 2
-    (the nearest face point lies on its edge, its neighbours filling half a disc, which
-    reads the spacing sqrt 2 too wide: :func:`gap_scale`), never below ``least`` (a
-    quarter of the median spacing, or the raster's resolution); cells inside the face or
-    farther out than ``most`` keep ``least``.
+    local spacing of the nearest face point (face (M, 2) with its spacing (M,):
+    :func:`planar_spacing`, not read too wide on the face's edge), never below ``least``
+    (a quarter of the median spacing, or the raster's resolution); cells inside the face
+    or farther out than ``most`` keep ``least``.
 
     Where the data thin out (a scan's density falling with range) the true edge lies
     farther beyond the last points, in proportion to their spacing: a margin of the
@@ -285,7 +297,7 @@ def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.nda
     band = np.argwhere((field > 0.0) & (field <= most))
     if len(band) and most > least:
         nearest = cKDTree(face).query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
-        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest] / np.sqrt(2.0))
+        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest])
     return out
 
 
@@ -301,12 +313,16 @@ def median_spacing(x: np.ndarray) -> float:
     return float(np.median(local_spacing(x[drawn]))) * float(np.sqrt(FOOTPRINT_POINTS / len(x)))
 
 
-def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
+def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """Which points (N,) say where the data lie on the surface: all but gross outliers,
-    of robust weight 0 (:func:`psonurbs.fitting.prepare.robust_weights.biweights`) *and* farther from the
-    surface than ``NEAR_EXACT`` of the points' median spacing (x (N, 2): their parameters
-    at the mean speeds). A stray the fit was bent towards (junk just past an edge) lies
-    beyond the cut-off but within a spacing of the surface: it must not widen the face.
+    of robust weight 0 (:func:`psonurbs.fitting.prepare.robust_weights.biweights`) *and*
+    farther from the surface than ``NEAR_EXACT`` of the points' median spacing (their
+    parameters uv (N, 2), at the mean speeds ``scale`` (2,)). A stray the fit was bent
+    towards (junk just past an edge) lies beyond the cut-off but within a spacing of the
+    surface: it must not widen the face. A point whose foot lies on the domain's edge
+    lies past the surface's edge, its distance the gap to it: it marks the data within a
+    whole spacing (the data run on a little past where the surface ends; on the edge it
+    cannot widen the face beyond the domain).
 
     The robust scale of a near-exact fit (noise-free points of a shape the net almost
     holds) is the net's approximation error, so the larger residuals at a feature or
@@ -317,7 +333,8 @@ def marks_the_data(distances: np.ndarray, x: np.ndarray) -> np.ndarray:
     in a cloud of diagonal 1.43 and median spacing about 26 thousandths)."""
     gross = biweights(distances) <= 0
     if gross.any():
-        gross &= distances > NEAR_EXACT * median_spacing(x)
+        on_edge = np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
+        gross &= distances > np.where(on_edge, 1.0, NEAR_EXACT) * median_spacing(uv * scale)
     return ~gross
 
 
@@ -419,6 +436,23 @@ def well_spread(x: np.ndarray, size: int) -> np.ndarray:
     return np.sort(order[first])
 
 
+def mark_joined(mask: np.ndarray, points: np.ndarray, drawn: np.ndarray, x0: float, y0: float, cell: float,
+                chunk: int = 65_536) -> None:
+    """Set the raster cells (the four centres around each sample) along the segment from
+    each of the points (N, 2) to the nearest of the drawn points (M, 2), in place: a point
+    past the subsample's boundary (by up to the alpha scale) is then joined to the face,
+    not an island the contours would leave out."""
+    tree = cKDTree(drawn)
+    for start in range(0, len(points), chunk):
+        p = points[start:start + chunk]
+        q = drawn[tree.query(p)[1]]
+        steps = np.linspace(0.0, 1.0, int(np.ceil(float(np.linalg.norm(p - q, axis=1).max()) / cell)) + 2)
+        along = (p[:, None, :] + steps[None, :, None] * (q - p)[:, None, :]).reshape(-1, 2)
+        at = np.floor((along - [x0, y0]) / cell).astype(int)
+        for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            mask[at[:, 0] + di, at[:, 1] + dj] = True
+
+
 def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndarray, face: np.ndarray,
                           others: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points (indices into ``every`` (N, 2)) on the face and on the other pieces
@@ -510,14 +544,19 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
         else:
             out = ~inside(sampled, probe)
             missed = probe[out] / tolerance
-            # a point within the tolerance of a loop is as good as on it (the loop is a
-            # margin outside the points, and only so precise), unless it is held on the
-            # domain's edge: there the margin is cut off, the loop can run along the edge
-            nearest = [cKDTree(p / tolerance).query(missed)[0] for p in sampled] if len(missed) else []
-            far = (np.min(nearest, axis=0) > 1.0) | on_edge[out] if len(missed) else np.zeros(0, bool)
+            # a point within the tolerance of a cubic loop is as good as on it (the loop is
+            # a margin outside the points, and only so precise), unless it is held on the
+            # domain's edge: there the margin is cut off, the loop can run along the edge;
+            # a simplified contour has no such excuse: the contour itself holds every point
+            nearest = np.asarray([cKDTree(p / tolerance).query(missed)[0] for p in sampled]) if len(missed) \
+                else np.zeros((len(loops), 0))
+            simplified = np.array([loop.degree == 1 and len(loop.control_points) <= len(clamped[k])
+                                   for k, loop in enumerate(loops)])
+            far = (nearest.min(axis=0) > 1.0) | on_edge[out] | simplified[np.argmin(nearest, axis=0)] \
+                if len(missed) else np.zeros(0, bool)
             if not far.any():
                 return loops
-            blamed = set(np.argmin(np.asarray(nearest)[:, far], axis=0).tolist())
+            blamed = set(np.argmin(nearest[:, far], axis=0).tolist())
         changed = False
         for k in blamed:
             if loops[k].degree == 1:
