@@ -309,3 +309,28 @@ def test_a_strip_where_the_surface_runs_past_the_data_along_an_edge_is_trimmed()
     assert face.trim is not None and face.loops == 1
     assert not face.trim.contains(np.array([[1 - spacing, 0.5]]))[0]
     assert fit_footprint(sample(lambda u, v: np.ones_like(u, bool), 4000, seed=3)).trim is None
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_rectangle_filling_cloud_is_fitted_to_its_edges(seed):
+    """A gentle height field sampled over the unit square, fitted end to end: where the
+    delivered surface ends (its edges, or its loops when trimmed) lies within a spacing
+    of the square's edges, on the surface, neither past them nor short of them."""
+    from test_fit import config
+
+    from psonurbs.fitting.pipeline import fit_points
+
+    rng = np.random.default_rng(seed)
+    xy = rng.random((2000, 2))
+    pts = np.column_stack([xy, 0.2 * np.sin(2.5 * xy[:, 0]) * np.cos(1.5 * xy[:, 1])])
+    result = fit_points(pts, config(orders=[4, 4], net_size=[6, 6], polish_iterations=20))
+    spacing = np.sqrt(1.0 / len(pts))
+    if result.trim is None:
+        t = np.linspace(0, 1, 400)
+        params = np.concatenate([np.column_stack([t, 0 * t]), np.column_stack([t, 0 * t + 1]),
+                                 np.column_stack([0 * t, t]), np.column_stack([0 * t + 1, t])])
+    else:
+        params = np.concatenate(result.trim.polygons())
+    boundary = result.surface.evaluate(*params.T)[:, :2]
+    off_edge = np.abs(np.max(np.abs(boundary - 0.5), axis=1) - 0.5)  # past the square's edge or short of it
+    assert off_edge.max() <= spacing
