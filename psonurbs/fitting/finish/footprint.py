@@ -230,7 +230,8 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     subsampled = len(drawn) < len(good)
     x = every[drawn]
     spacing = planar_spacing(x)
-    tri, kept = alpha_triangles(x, spacing, local_spacing(surface.evaluate(*uv[good[drawn]].T)))
+    data, data_spacing = points[good[drawn]], local_spacing(points[good[drawn]])  # on the surface
+    tri, kept = alpha_triangles(x, spacing, data_spacing)
     if not kept.any():
         return None
     label = pieces(tri, kept)
@@ -266,9 +267,9 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     empty = np.argwhere(in_domain & (field > 0.0))
     rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
     gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
-                     np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, points[good[drawn]]) \
+                     np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, data, data_spacing) \
         if len(empty) and len(rim) else 0.0
-    overrun = edge_overrun(surface, points[good[drawn]])
+    overrun = edge_overrun(surface, data, data_spacing)
     polygons = [p / scale for p in contours(field, xs, ys, 0.0)]
     polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
@@ -338,9 +339,10 @@ def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> 
     return ~gross
 
 
-def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray) -> float:
+def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray,
+               spacing: np.ndarray) -> float:
     """The widest gap on the surface outside the face, in the spacing of the points
-    (N, 3) beside it: max over the surface at the parameters ``empty_uv`` (M, 2) (at most
+    (N, 3) beside it (their local spacing (N,): :func:`gap_scale`): max over the surface at the parameters ``empty_uv`` (M, 2) (at most
     ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
     smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
     distance to the surface's edge (the chord to the edge point along each parameter
@@ -361,14 +363,16 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
             edge = empty_uv.copy()
             edge[:, k] = end
             radius = np.minimum(radius, np.linalg.norm(at - surface.evaluate(edge[:, 0], edge[:, 1]), axis=1))
-    return float(np.max(radius / gap_scale(points, at)))
+    return float(np.max(radius / gap_scale(points, spacing, at)))
 
 
-def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_SAMPLES) -> float:
+def edge_overrun(surface: NurbsSurface, points: np.ndarray, spacing_of: np.ndarray, samples: int = EDGE_SAMPLES
+                 ) -> float:
     """How far the surface's edges run past the data (N, 3): the distance on the surface
     from an open direction's edge to the nearest point, in that point's local spacing
-    (:func:`local_spacing`: the density's, not the step along a scan line), as far as the
-    edge keeps it along a stretch of ``ALPHA`` spacings; the largest over the edges.
+    ``spacing_of`` (N,; :func:`local_spacing`: the density's, not the step along a scan
+    line), as far as the edge keeps it along a stretch of ``ALPHA`` spacings; the largest
+    over the edges.
 
     Along the edge of a cloud that fills its rectangle some point comes within about a
     spacing of every such stretch (a random sample's widest gap at an edge, 2 to 4
@@ -379,7 +383,6 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_
     if len(points) <= NEIGHBOURS:
         return 0.0
     tree = cKDTree(points)
-    spacing_of = local_spacing(points)
     t = np.linspace(0.0, 1.0, samples)
     deepest = 0.0
     for k, closed, ends, other in ((0, surface.closed_u, surface.domain_u, surface.domain_v),
@@ -399,9 +402,9 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, samples: int = EDGE_
     return deepest
 
 
-def gap_scale(points: np.ndarray, at: np.ndarray) -> np.ndarray:
+def gap_scale(points: np.ndarray, spacing: np.ndarray, at: np.ndarray) -> np.ndarray:
     """The spacing (M,) a gap at the surface points ``at`` (M, 3) is measured in: the
-    local spacing of the nearest of the points (N, 3) over sqrt 2, never below their
+    local spacing (N,) of the nearest of the points (N, 3) over sqrt 2, never below their
     median spacing.
 
     A random sample leaves gaps as wide as its local spacing, so where the data thin
@@ -410,7 +413,6 @@ def gap_scale(points: np.ndarray, at: np.ndarray) -> np.ndarray:
     across it was trimmed on most draws. The nearest point to a gap lies on the data's
     edge, where its neighbours fill half a disc and :func:`local_spacing` reads sqrt 2
     too wide; the median keeps the measure where the data are dense as it was."""
-    spacing = local_spacing(points)
     nearest = cKDTree(points).query(at)[1]
     return np.maximum(spacing[nearest] / np.sqrt(2.0), max(float(np.median(spacing)), 1e-300))
 
