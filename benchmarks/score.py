@@ -550,21 +550,24 @@ class MeshDistance:
     def _within_reach(self, q: np.ndarray, d: np.ndarray, pairs: int = 1 << 18) -> np.ndarray:
         """The least distance over every triangle that could be nearer than d: a triangle T
         lies within R_T (its corners' farthest from its centroid c_T) of c_T, so only those
-        with |q - c_T| < d + max R can (a point far from the mesh, against its spacing)."""
-        reach = self.centroids.query_ball_point(q, d + self.radius)
-        count = np.array([len(r) for r in reach])
+        with |q - c_T| < d + max R can (a point far from the mesh, against its spacing).
+        Points go in groups of about ``pairs`` point-triangle pairs, each group's triangles
+        listed only when it is measured: a wild surface (a fit reaching far past the cloud)
+        has every one of its triangles within reach of every point."""
+        radius = d + self.radius
+        count = np.asarray(self.centroids.query_ball_point(q, radius, return_length=True))
         order = np.argsort(count, kind="stable")
         out = d.copy()
         start = 0
-        while start < len(order):  # groups of similar counts, about ``pairs`` point-triangle pairs each
+        while start < len(order):  # groups of similar counts
             stop = start + 1
             while stop < len(order) and (stop - start + 1) * max(int(count[order[stop]]), 1) <= pairs:
                 stop += 1
             group = order[start:stop]
-            width = max(int(count[group].max()), 1)
-            candidates = np.full((len(group), width), -1, np.int64)
-            for row, i in enumerate(group):
-                candidates[row, :count[i]] = reach[i]
+            reach = self.centroids.query_ball_point(q[group], radius[group])
+            candidates = np.full((len(group), max(int(count[group].max()), 1)), -1, np.int64)
+            for row, found in enumerate(reach):
+                candidates[row, :len(found)] = found
             out[group] = np.minimum(out[group], self._distances(q[group], candidates))
             start = stop
         return out
