@@ -143,8 +143,28 @@ def test_normals_are_oriented_consistently_along_the_curl():
     assert np.all(side == side[0])  # all outwards or all inwards, over 250 degrees
 
 
+def helicoid(n=4000, turns=1.5, seed=0, noise=5e-4):
+    """A helicoid strip: radius 0.3 to 1 along v, rising 0.3 a turn: never seen edge-on,
+    its projection fills its square, and the plane stacks its turns."""
+    rng = np.random.default_rng(seed)
+    a, r = rng.uniform(0, 2 * np.pi * turns, n), rng.uniform(0.3, 1.0, n)
+    pts = np.column_stack([r * np.cos(a), r * np.sin(a), 0.3 * a / (2 * np.pi)])
+    return pts + rng.normal(0, noise, pts.shape)
+
+
+def pushed_off(n=4000, share=0.1, seed=3):
+    """A noisy Franke surface with a tenth of its points pushed 5 to 20 sigmas off along z."""
+    pts = franke(n=n, seed=seed, noise=0.001)
+    rng = np.random.default_rng(seed + 1)
+    pushed = rng.random(n) < share
+    sigma = 0.001 * float(np.linalg.norm(np.ptp(pts, axis=0)))
+    pts[pushed, 2] += rng.uniform(5, 20, pushed.sum()) * sigma * rng.choice([-1.0, 1.0], pushed.sum())
+    return pts
+
+
 @pytest.mark.parametrize("name, cloud", [
     ("bump, noisy", lambda: height_field()),
+    ("franke, a tenth pushed 5-20 sigmas off", pushed_off),
     ("saddle, uneven density, 2% strays", lambda: height_field(saddle=True, graded=True, strays=0.02)),
     ("franke, steep flanks", lambda: franke(n=3000, seed=5, noise=0.002)),
     ("plate over an ellipse", lambda: plate()),
@@ -160,6 +180,7 @@ def test_auto_keeps_the_plane_on_a_height_field(name, cloud):
     ("hemisphere", spherical_cap, "edge-on"),
     ("twisted ribbon", twisted_ribbon, "fills"),
     ("strip twisted 90 degrees, noisy", lambda: twisted_ribbon(n=4000, degrees=90.0, noise=1e-3), "fills"),
+    ("helicoid, one and a half turns", helicoid, "over another part"),
 ])
 def test_auto_lays_flat_what_no_plane_sees_as_a_height_field(name, cloud, why):
     par = parametrise_open_patch(cloud(), "auto")

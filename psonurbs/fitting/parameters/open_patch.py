@@ -3,7 +3,7 @@ height field over the plane, the intrinsic embedding otherwise (``parametrisatio
 
 ``plane`` is :func:`psonurbs.fitting.parameters.plane.parametrise_open` (the plane the surface
 faces most squarely), ``intrinsic`` is :func:`psonurbs.fitting.parameters.intrinsic.parametrise_intrinsic`
-(the cloud's own graph laid flat). ``auto`` keeps the plane unless one of two things
+(the cloud's own graph laid flat). ``auto`` keeps the plane unless one of three things
 shows that the projection misrepresents the surface:
 
 * **edge-on or folded**: with ``n`` the local normals and ``d`` the plane's normal, the
@@ -13,6 +13,12 @@ shows that the projection misrepresents the surface:
   is of area (each point weighted by the square of its neighbourhood radius), so
   uneven sampling does not hide a sparse steep part; ``|n . d|`` needs no orientation,
   so a stray's wrong normal counts only as itself.
+* **stacked**: the share of the surface's area that the projection lays over another
+  part of it is above ``EDGE_ON_SHARE`` (:func:`stacked_share`): a point whose nearest
+  neighbours in the projection include one farther off in space than twice its own
+  neighbourhood's radius and than a surface steeper than 80 degrees would put it. A
+  surface winding round an axis (a helicoid, a spiral ramp) is never edge-on and its
+  projection fills the square, but the plane stacks its turns.
 * **the footprint fills less**: the flattening, scaled along its rectangle, occupies at
   least ``FILL_MARGIN`` more of the cells of the unit square than the projection (a
   twisted strip projects onto a bow tie: the square's corners would be extrapolated).
@@ -33,6 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs.geometry import compiled
 
@@ -42,23 +49,27 @@ from .plane import parametrise_open
 
 METHODS = ("auto", "plane", "intrinsic")
 EDGE_ON = float(np.cos(np.radians(80.0)))  # |n . d| below this: seen edge-on, squeezed over 5.8 times
-EDGE_ON_SHARE = 0.05  # of the surface's area that may be seen edge-on (noise, strays, a rim)
+EDGE_ON_SHARE = 0.05  # of the surface's area that may be seen edge-on or stacked (noise, strays, a rim)
+STACK_NEIGHBOURS = 6  # a point's nearest neighbours in the projection that may lie on another sheet
+STACK_REACH = 2.0  # another sheet lies farther than this many neighbourhood radii (junk a few sigmas off, nearer)
 
 
 @dataclass(frozen=True)
 class OpenChoice:
-    """The evidence behind ``auto``: how much of the surface the plane sees edge-on and
-    how much of the unit square each parametrisation fills."""
+    """The evidence behind ``auto``: how much of the surface the plane sees edge-on or
+    stacks on another part of it, and how much of the unit square each parametrisation
+    fills."""
 
     edge_on_share: float
     fill_plane: float
     fill_intrinsic: float
     method: str
     reason: str
+    stacked_share: float = 0.0
 
     def to_dict(self) -> dict:
-        return {"edge_on_share": self.edge_on_share, "fill_plane": self.fill_plane,
-                "fill_intrinsic": self.fill_intrinsic, "reason": self.reason}
+        return {"edge_on_share": self.edge_on_share, "stacked_share": self.stacked_share,
+                "fill_plane": self.fill_plane, "fill_intrinsic": self.fill_intrinsic, "reason": self.reason}
 
 
 def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray) -> float:
@@ -67,15 +78,39 @@ def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray)
     return float(np.sum(areas[np.abs(normals @ direction) < EDGE_ON]) / np.sum(areas))
 
 
-def choose(edge_on: float, fill_plane: float, fill_intrinsic: float) -> OpenChoice:
+def stacked_share(points: np.ndarray, reach: np.ndarray, areas: np.ndarray, direction: np.ndarray,
+                  neighbours: int = STACK_NEIGHBOURS) -> float:
+    """Share of the area (``areas`` per point of ``points`` (M, 3)) that the projection
+    along ``direction`` lays over another part of the surface: a point with one of its
+    nearest neighbours in the projection farther off in space than both ``STACK_REACH``
+    times its own neighbourhood's radius ``reach`` (M,) and 1 / cos 80 degrees times their
+    distance in the projection (steeper than the edge-on test's surface: a sheet above or
+    below, not a point of junk a few noise sigmas off it).
+
+    A surface that winds round an axis (a helicoid, a spiral ramp) is never seen edge-on
+    and its projection fills the square, yet the plane stacks its turns on each other."""
+    direction = direction / np.linalg.norm(direction)
+    flat = points - np.outer(points @ direction, direction)
+    k = min(neighbours, len(points) - 1)
+    planar, near = cKDTree(flat).query(flat, k=k + 1)
+    spatial = np.linalg.norm(points[near[:, 1:]] - points[:, None, :], axis=2)
+    stacked = np.any(spatial > np.maximum(planar[:, 1:] / EDGE_ON, STACK_REACH * reach[:, None]), axis=1)
+    return float(np.sum(areas[stacked]) / np.sum(areas))
+
+
+def choose(edge_on: float, fill_plane: float, fill_intrinsic: float, stacked: float = 0.0) -> OpenChoice:
+    def chosen(method: str, reason: str) -> OpenChoice:
+        return OpenChoice(edge_on, fill_plane, fill_intrinsic, method, reason, stacked)
+
     if edge_on > EDGE_ON_SHARE:
-        return OpenChoice(edge_on, fill_plane, fill_intrinsic, "intrinsic",
-                          f"{edge_on:.0%} of the surface is seen edge-on from the plane (folds or turns vertical)")
+        return chosen("intrinsic", f"{edge_on:.0%} of the surface is seen edge-on from the plane (folds or turns "
+                      "vertical)")
+    if stacked > EDGE_ON_SHARE:
+        return chosen("intrinsic", f"the plane lays {stacked:.0%} of the surface over another part of it")
     if fill_intrinsic >= fill_plane + FILL_MARGIN:
-        return OpenChoice(edge_on, fill_plane, fill_intrinsic, "intrinsic",
-                          f"the projection fills {fill_plane:.0%} of the parameter square, "
-                          f"the intrinsic parameters {fill_intrinsic:.0%}")
-    return OpenChoice(edge_on, fill_plane, fill_intrinsic, "plane", "a height field over the plane")
+        return chosen("intrinsic", f"the projection fills {fill_plane:.0%} of the parameter square, "
+                      f"the intrinsic parameters {fill_intrinsic:.0%}")
+    return chosen("plane", "a height field over the plane")
 
 
 def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametrisation:
@@ -93,7 +128,9 @@ def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametr
     areas = graph.lengths[:, -1] ** 2  # ~ the surface area each point stands for
     part = graph.component
     cells = fill_cells(len(sample))
-    choice = choose(edge_on_share(graph.normals[part], areas[part], np.asarray(plane.info["normal"])),
-                    fill(plane.uv[sample], cells), fill(intrinsic.rectangle[sample], cells))
+    normal = np.asarray(plane.info["normal"])
+    choice = choose(edge_on_share(graph.normals[part], areas[part], normal),
+                    fill(plane.uv[sample], cells), fill(intrinsic.rectangle[sample], cells),
+                    stacked_share(graph.points[part], graph.lengths[part, -1], areas[part], normal))
     chosen = intrinsic.par if choice.method == "intrinsic" else plane
     return Parametrisation(chosen.uv, {**chosen.info, "choice": choice.to_dict()})
