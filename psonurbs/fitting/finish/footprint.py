@@ -9,7 +9,7 @@ From the points' final parameters (their foot points on the fitted surface):
    density. k is large enough that a scan's lines (dense along, sparse across) give the
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
-   ``ALPHA`` times the spacing of their corners (their median; the smallest across a jump
+   ``ALPHA`` times the spacing of their corners (the largest; the smallest across a jump
    in density on the surface: :func:`judging_spacing`): a gap narrower than that
    is sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
@@ -126,23 +126,6 @@ def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
     return r * np.sqrt(np.pi / k)
 
 
-def planar_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
-    """The local spacing of points x (N, 2) in the plane, s_i = r_k sqrt(pi f_i / k), with
-    f_i the share of the disc of radius r_k its k neighbours fill: 1 less the widest angle
-    between them around it over 2 pi (about 1 inside, 1/2 on an edge, 1/4 at a corner).
-
-    At the data's edge the neighbours fill half a disc, and r_k sqrt(pi / k) reads the
-    spacing sqrt 2 too wide: along a slot or a hole the alpha shape would judge its rim's
-    triangles too leniently and bridge the gap."""
-    k = min(k, len(x) - 1)
-    r, near = cKDTree(x).query(x, k=k + 1)
-    offset = x[near[:, 1:]] - x[:, None, :]
-    angle = np.sort(np.arctan2(offset[..., 1], offset[..., 0]), axis=1)
-    gaps = np.diff(np.concatenate([angle, angle[:, :1] + 2.0 * np.pi], axis=1), axis=1)
-    filled = np.clip(1.0 - gaps.max(axis=1) / (2.0 * np.pi), 0.25, 1.0)
-    return r[:, -1] * np.sqrt(np.pi * filled / k)
-
-
 def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None
                     ) -> tuple[Delaunay, np.ndarray]:
     """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles:
@@ -172,21 +155,22 @@ def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | No
 
 
 def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
-    """The spacing (T,) a triangle is judged by, from its corners' spacings (T, 3): their
-    median; where their spacings on the surface ``density`` (T, 3) differ more than
+    """The spacing (T,) a triangle is judged by, from its corners' spacings (T, 3): the
+    largest; where their spacings on the surface ``density`` (T, 3) differ more than
     ``DENSITY_JUMP`` fold, the smallest (the dense side's).
 
-    The median, not the largest: a stray off the data's edge (a point of junk the surface
-    was bent to) is sparse by its own spacing, and judged by it, it would join the data
-    with every triangle it spans to them. Strays together with a data point are judged
-    across the jump at the data's spacing: where the fit was bent to a few strays, a thin
-    strip of the domain is a wide flap of surface, and strays close together in the
-    domain lie far apart on it, so the jump is measured on the surface. A scan's density
-    changes gradually (by a few per cent from a point to its neighbours where it thins out
-    with range), and a point's spacing estimate varies by less than twofold (an edge's
-    half-empty neighbourhood, a corner's)."""
+    The largest lets a sparse part join the data (a scan's density falling with range,
+    the thin edge of a graded cloud, a neck between two parts of a real scan). But a stray
+    off the data's edge (a point of junk the surface was bent to) is sparse by its own
+    spacing too, and judged by it, it would join the data with every triangle it spans to
+    them: a triangle across a jump in density is judged at the dense side's spacing. The
+    jump is measured on the surface: where the fit was bent to a few strays, a thin strip
+    of the domain is a wide flap of surface, and strays close together in the domain lie
+    far apart on it. A scan's density changes gradually (by a few per cent from a point to
+    its neighbours where it thins out with range), and a point's spacing estimate varies
+    by less than twofold (an edge's half-empty neighbourhood, a corner's)."""
     jump = density.max(axis=1) > DENSITY_JUMP * density.min(axis=1)
-    return np.where(jump, corners.min(axis=1), np.median(corners, axis=1))
+    return np.where(jump, corners.min(axis=1), corners.max(axis=1))
 
 
 def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
@@ -229,7 +213,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
     x = every[drawn]
-    spacing = planar_spacing(x)
+    spacing = local_spacing(x)
     data, data_spacing = points[good[drawn]], local_spacing(points[good[drawn]])  # on the surface
     tri, kept = alpha_triangles(x, spacing, data_spacing)
     if not kept.any():
@@ -286,10 +270,11 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
 def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
                  least: float, most: float) -> np.ndarray:
     """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
-    local spacing of the nearest face point (face (M, 2) with its spacing (M,):
-    :func:`planar_spacing`, not read too wide on the face's edge), never below ``least``
-    (a quarter of the median spacing, or the raster's resolution); cells inside the face
-    or farther out than ``most`` keep ``least``.
+    local spacing of the nearest face point (face (M, 2) with its spacing (M,)) over sqrt 2
+    (the nearest face point lies on its edge, its neighbours filling half a disc, which
+    reads the spacing sqrt 2 too wide: :func:`gap_scale`), never below ``least`` (a
+    quarter of the median spacing, or the raster's resolution); cells inside the face or
+    farther out than ``most`` keep ``least``.
 
     Where the data thin out (a scan's density falling with range) the true edge lies
     farther beyond the last points, in proportion to their spacing: a margin of the
@@ -298,7 +283,7 @@ def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.nda
     band = np.argwhere((field > 0.0) & (field <= most))
     if len(band) and most > least:
         nearest = cKDTree(face).query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
-        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest])
+        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest] / np.sqrt(2.0))
     return out
 
 
