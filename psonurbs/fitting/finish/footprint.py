@@ -237,7 +237,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     cell = max(margin / 3.0, float((hi - lo).max()) / MAX_RASTER)
     margin = max(margin, 3.0 * cell)
     widest = max(margin, MARGIN * float(spacing[face_drawn].max()))  # at least the margin where the data are sparsest
-    pad = widest + 3.0 * cell
+    pad = margin + 3.0 * cell + np.ceil((widest - margin) / cell) * cell  # whole cells more: the same lattice
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
