@@ -10,8 +10,8 @@ From the points' final parameters (their foot points on the fitted surface):
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
    ``ALPHA`` times the spacing of their corners (the largest; the smallest across a jump
-   in density on the surface: :func:`judging_spacing`): a gap narrower than that
-   is sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
+   in density on the surface: :func:`judging_spacing`): a gap narrower than that is
+   sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
@@ -30,9 +30,10 @@ so a sparse region keeps all its points), steps 2-5 at the subsample's spacing (
 resolution of the holes, pieces and margin; the raster is as fine as for all the points,
 ``MAX_RASTER``): every point then joins the piece of its nearest drawn point when within
 the alpha scale of it, and the raster cells along the way from every point of the face to
-that drawn point are added to it (:func:`mark_joined`), so that the loops hold them all (the subsample's own boundary lies inside the data's
-by a fraction of its spacing). The points off the face, the fragments' points and the
-distances are still those of every point.
+that drawn point are added to it (:func:`mark_joined`), so that the loops hold them all
+(the subsample's own boundary lies inside the data's by a fraction of its spacing). The
+points off the face, the fragments' points and the distances are still those of every
+point.
 
 A face that holds fewer than half of the points (a fit far from the data, pieces of
 the cloud spread over the domain) is not the data's footprint: the surface is left
@@ -330,8 +331,9 @@ def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> 
 def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray,
                spacing: np.ndarray) -> float:
     """The widest gap on the surface outside the face, in the spacing of the points
-    (N, 3) beside it (their local spacing (N,): :func:`gap_scale`): max over the surface at the parameters ``empty_uv`` (M, 2) (at most
-    ``GAP_SAMPLES`` of them, evenly taken) of the radius of the empty disc there, the
+    (N, 3) beside it (their local spacing (N,): :func:`gap_scale`): max over the surface
+    at the parameters ``empty_uv`` (M, 2) (at most ``GAP_SAMPLES`` of them, evenly taken)
+    of the radius of the empty disc there, the
     smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
     distance to the surface's edge (the chord to the edge point along each parameter
     line of an open direction), over the points' spacing there (:func:`gap_scale`, on
