@@ -334,3 +334,16 @@ def test_a_rectangle_filling_cloud_is_fitted_to_its_edges(seed):
     boundary = result.surface.evaluate(*params.T)[:, :2]
     off_edge = np.abs(np.max(np.abs(boundary - 0.5), axis=1) - 0.5)  # past the square's edge or short of it
     assert off_edge.max() <= spacing
+
+
+def test_a_triangle_is_judged_at_most_at_a_jump_times_its_densest_corner():
+    """Without a jump in density on the surface a triangle is judged by its sparsest
+    corner, but never wider than DENSITY_JUMP times its densest: one corner spread wide
+    by the map (the outer side of a flattened curved strip, a lone point in the domain)
+    does not let the triangle bridge the strip's concave side. Across a jump on the
+    surface the densest corner's spacing counts."""
+    jump = footprint_module.DENSITY_JUMP
+    corners = np.array([[1.0, 1.2, 1.5], [1.0, 1.0, 10.0], [1.0, 1.0, 10.0]])
+    density = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 3.0]])
+    judged = footprint_module.judging_spacing(corners, density)
+    np.testing.assert_allclose(judged, [1.5, jump, 1.0])

@@ -9,8 +9,9 @@ From the points' final parameters (their foot points on the fitted surface):
    density. k is large enough that a scan's lines (dense along, sparse across) give the
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
-   ``ALPHA`` times the spacing of their corners (the largest; the smallest across a jump
-   in density on the surface: :func:`judging_spacing`): a gap narrower than that is
+   ``ALPHA`` times the spacing of their corners (the largest, at most ``DENSITY_JUMP``
+   times the smallest; the smallest across a jump in density on the surface:
+   :func:`judging_spacing`): a gap narrower than that is
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
@@ -157,8 +158,9 @@ def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | No
 
 def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
     """The spacing (T,) a triangle is judged by, from its corners' spacings (T, 3): the
-    largest; where their spacings on the surface ``density`` (T, 3) differ more than
-    ``DENSITY_JUMP`` fold, the smallest (the dense side's).
+    largest, at most ``DENSITY_JUMP`` times the smallest; where their spacings on the
+    surface ``density`` (T, 3) differ more than ``DENSITY_JUMP`` fold, the smallest (the
+    dense side's).
 
     The largest lets a sparse part join the data (a scan's density falling with range,
     the thin edge of a graded cloud, a neck between two parts of a real scan). But a stray
@@ -169,9 +171,15 @@ def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
     of the domain is a wide flap of surface, and strays close together in the domain lie
     far apart on it. A scan's density changes gradually (by a few per cent from a point to
     its neighbours where it thins out with range), and a point's spacing estimate varies
-    by less than twofold (an edge's half-empty neighbourhood, a corner's)."""
+    by less than twofold (an edge's half-empty neighbourhood, a corner's). So neither
+    does a corner's spacing in the domain differ more than that from its neighbours' where
+    the map is fair; where it does (a lone point in the domain, or a flattening that
+    spreads one side of a curved strip), the largest would let a triangle bridge the
+    concave side of the strip (a horseshoe's mouth): it counts at most ``DENSITY_JUMP``
+    times the smallest."""
     jump = density.max(axis=1) > DENSITY_JUMP * density.min(axis=1)
-    return np.where(jump, corners.min(axis=1), corners.max(axis=1))
+    least = corners.min(axis=1)
+    return np.where(jump, least, np.minimum(corners.max(axis=1), DENSITY_JUMP * least))
 
 
 def pieces(tri: Delaunay, kept: np.ndarray) -> np.ndarray:
