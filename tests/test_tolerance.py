@@ -146,6 +146,20 @@ def test_the_search_delivers_the_smallest_meeting_net_it_found():
     assert tolerance["achieved"] <= tolerance["value"]  # over all points, on the delivered surface
 
 
+def test_auto_topology_is_chosen_at_the_first_net_and_reported_with_the_delivered_fit():
+    """With ``topology: auto`` the first net's fit chooses the topology and every later
+    net keeps it; the delivered fit carries that choice's scores and note."""
+    config = config_from_dict({"orders": [4, 4], "topology": "auto", "tolerance_rel": 2e-3,
+                               "swarm": {"particles": 1, "iterations": 1}})
+    result = fit_points(bump(600), config)
+    assert result.topology == "open"
+    scores = result.info["topology_scores"]
+    assert set(scores) >= {"open", "cylinder", "sphere", "torus"}
+    assert "rejected" not in scores["open"]
+    assert result.notes[0].startswith("tolerance") and result.notes[1].startswith("topology auto: open")
+    assert result.info["tolerance"]["met"]
+
+
 def test_a_tolerance_below_the_noise_is_not_met_and_says_so(tmp_path):
     (tmp_path / "noisy.ply").write_bytes(ply_bytes(bump(600, noise=0.01)))
     (tmp_path / "cfg.yaml").write_text(f"orders: [4, 4]\ntolerance_rel: 1.0e-4\nswarm: {json.dumps(SMALL_SWARM)}\n")

@@ -57,7 +57,7 @@ import numpy as np
 from psonurbs.config import FIELDS, SPHERE_MIN_V
 from psonurbs.errors import PsonurbsError
 from psonurbs.fitting.budget import check_budget
-from psonurbs.fitting.parameters.topology import layout_for
+from psonurbs.fitting.parameters.topology import layout_for, topology_note
 from psonurbs.fitting.prepare.organise import organise
 from psonurbs.fitting.prepare.outliers import local_outliers
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -306,6 +306,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     sigma = _noise(points, config.orders)
     floor = noise_allows(sigma, name, len(judged))
     topology = config.topology
+    scores = None  # auto's scores, from the fit that chose the topology
     largest = _largest_net(config, len(train))
 
     swarm = config.strategy == "hybrid" and config.swarm.particles * config.swarm.iterations > 1
@@ -317,10 +318,11 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
                                    swarm=swarm_config)
 
     def one_net(size: tuple[int, int], knots: str) -> Step:
-        nonlocal topology
+        nonlocal topology, scores
         start = time.perf_counter()
         result = fit(train, sized(size, knots), on_iteration=on_iteration, swarm_weights=False)
         topology = result.topology  # auto: chosen once, at the first net
+        scores = result.info.get("topology_scores", scores)
         uv, dist = _held_distances(result.surface, judged)
         covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
         uv, dist = uv[covered], dist[covered]
@@ -350,5 +352,8 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
                  "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
                  "noise": sigma, "searched": [s.to_dict() for s in steps]}
     result.info["tolerance"] = tolerance
+    if scores is not None:  # the delivered fit was told its topology: the choice is the first net's
+        result.info["topology_scores"] = scores
+        result.notes.insert(0, topology_note(topology, scores))
     result.notes.insert(0, tolerance_sentence(tolerance))
     return result
