@@ -253,9 +253,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     if subsampled:  # and every point on the face, joined to the drawn point of its piece
         mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
     field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
-    rim_spacing = np.median(spacing[face_drawn][cKDTree(x[face_drawn]).query(
-        x[face_drawn], k=min(NEIGHBOURS, len(face_drawn)))[1].reshape(len(face_drawn), -1)], axis=1)
-    field -= local_margin(field, xs, ys, x[face_drawn], rim_spacing, margin, widest)
+    field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
@@ -281,8 +279,9 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
 def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
                  least: float, most: float) -> np.ndarray:
     """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
-    local spacing of the nearest face point (face (M, 2) with its spacing (M,), the median
-    over its neighbours: a sparse end's, not one point's sampling luck) over sqrt 2
+    local spacing of the nearest face point (face (M, 2) with their spacings (M,); the
+    median over its ``NEIGHBOURS`` nearest face points: a sparse end's, not one point's
+    sampling luck) over sqrt 2
     (the nearest face point lies on its edge, its neighbours filling half a disc, which
     reads the spacing sqrt 2 too wide: :func:`gap_scale`), never below ``least`` (a
     quarter of the median spacing, or the raster's resolution); cells inside the face or
@@ -294,8 +293,10 @@ def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.nda
     out = np.full(field.shape, least)
     band = np.argwhere((field > 0.0) & (field <= most))
     if len(band) and most > least:
-        nearest = cKDTree(face).query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
-        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * spacing[nearest] / np.sqrt(2.0))
+        tree = cKDTree(face)
+        rim = np.median(spacing[tree.query(face, k=min(NEIGHBOURS, len(face)))[1].reshape(len(face), -1)], axis=1)
+        nearest = tree.query(np.column_stack([xs[band[:, 0]], ys[band[:, 1]]]))[1]
+        out[band[:, 0], band[:, 1]] = np.maximum(least, MARGIN * rim[nearest] / np.sqrt(2.0))
     return out
 
 
