@@ -88,13 +88,13 @@ def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smooth
     cannot bend round a 270-degree cone, and its foot points crowd the parameters where
     it can reach (a 270-degree cone's fit 8 to 12 times farther through the ladder than
     without it)."""
-    first = uv
+    first, levels = uv, ladder(layout)
     report = []
-    for level in ladder(layout):
+    for level in levels:
         uv, entry = corrected(level, layout, points, uv, smoothing, rounds)
         report.append(entry)
     if direct:
-        alone, entry = corrected(ladder(layout)[-1], layout, points, first, smoothing, rounds)
+        alone, entry = corrected(levels[-1], layout, points, first, smoothing, rounds)
         report.append({**entry, "direct": True})
         if entry["rmse"] < report[-2]["rmse"]:
             return alone, report
