@@ -133,14 +133,19 @@ class NurbsSurface:
 
     def restricted(self, u_range: tuple[float, float] = (0.0, 1.0),
                    v_range: tuple[float, float] = (0.0, 1.0)) -> "NurbsSurface":
-        """The same surface on the sub-domain u_range x v_range, reparametrised onto
-        [0, 1]^2 with the same net size (open directions only).
+        """The same surface on the domain u_range x v_range, reparametrised onto [0, 1]^2
+        with the same net size (open directions only). A range inside [0, 1] restricts
+        the surface; one reaching past it extends it (its end spans' polynomials
+        continued, as a CAD kernel extends a face past its edges).
 
         Exact: the restriction of a spline to [a, b] lies in the spline space of the knots
         inside (a, b), clamped at a and b (knot insertion); spans whose knots fall
-        outside are given back by halving the widest span, so the net keeps its size.
-        The homogeneous net (w P, w) is solved direction by direction from collocation.
+        outside are given back by halving the widest span, so the net keeps its size. An
+        extension keeps every inner knot: the end spans only grow. The homogeneous net
+        (w P, w) is solved direction by direction from collocation.
         """
+        from scipy.interpolate import BSpline
+
         net = np.concatenate([self.control_points * self.weights[..., None], self.weights[..., None]], axis=2)
         knots = [self.knots_u, self.knots_v]
         for k, ((a, b), degree, closed) in enumerate(((u_range, self.degree_u, self.closed_u),
@@ -148,7 +153,7 @@ class NurbsSurface:
             if (a, b) == (0.0, 1.0):
                 continue
             if closed:
-                raise ValueError("a closed direction cannot be restricted")
+                raise ValueError("a closed direction cannot be restricted or extended")
             n = net.shape[k]
             inner = knots[k][degree + 1:n]
             inner = list((inner[(inner > a) & (inner < b)] - a) / (b - a))
@@ -158,7 +163,7 @@ class NurbsSurface:
                 inner = sorted(inner + [0.5 * (edges[widest] + edges[widest + 1])])
             new_knots = clamped_knots(n, degree, np.array(inner))
             x = np.linspace(0.0, 1.0, 4 * n)
-            old = design_matrix(a + (b - a) * x, knots[k], degree).toarray()
+            old = BSpline.design_matrix(a + (b - a) * x, knots[k], degree, extrapolate=True).toarray()
             new = design_matrix(x, new_knots, degree).toarray()
             moved = np.moveaxis(net, k, 0)
             solved = np.linalg.lstsq(new, np.einsum("xi,i...->x...", old, moved).reshape(len(x), -1), rcond=None)[0]
