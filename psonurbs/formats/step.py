@@ -23,7 +23,7 @@ from psonurbs.errors import ConfigError
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
 
-__all__ = ["step_available", "render_step"]
+__all__ = ["step_available", "render_step", "render_step_shape", "render_iges_shape", "compound_of"]
 
 INSTALL_HINT = "pip install 'psonurbs[cad]'"
 TOLERANCE = 1e-7  # OpenCASCADE's edge and vertex tolerance (cloud units)
@@ -50,23 +50,32 @@ def _knots(flat: np.ndarray):
     return knots, mults
 
 
-def occ_surface(surface: NurbsSurface):
-    """The surface as a ``Geom_BSplineSurface`` (rational unless all weights are equal)."""
+def occ_surface(surface: NurbsSurface, periodic: bool = False):
+    """The surface as a ``Geom_BSplineSurface`` (rational unless all weights are equal).
+
+    ``periodic``: a closed direction becomes OpenCASCADE's periodic B-spline (the
+    domain's knots once each, the net without its ``degree`` repeated rows), so that a
+    face of it has one seam edge and a shell can close across it; otherwise the closed
+    direction's net and unclamped knots are written as they are (the same surface, its
+    two seam edges apart)."""
     from OCP.collections import Array2_double, Array2_gp_Pnt
     from OCP.Geom import Geom_BSplineSurface
     from OCP.gp import gp_Pnt
 
+    wrap = [periodic and closed for closed in (surface.closed_u, surface.closed_v)]
     nu, nv = surface.shape
+    nu, nv = nu - wrap[0] * surface.degree_u, nv - wrap[1] * surface.degree_v
     poles, weights = Array2_gp_Pnt(1, nu, 1, nv), Array2_double(1, nu, 1, nv)
     for i in range(nu):
         for j in range(nv):
             poles.SetValue(i + 1, j + 1, gp_Pnt(*(float(c) for c in surface.control_points[i, j])))
             weights.SetValue(i + 1, j + 1, float(surface.weights[i, j]))
-    ku, mu = _knots(surface.knots_u)
-    kv, mv = _knots(surface.knots_v)
+    flat = [k[p:len(k) - p] if w else k for k, p, w in ((surface.knots_u, surface.degree_u, wrap[0]),
+                                                         (surface.knots_v, surface.degree_v, wrap[1]))]
+    (ku, mu), (kv, mv) = _knots(flat[0]), _knots(flat[1])
     if np.all(surface.weights == surface.weights.flat[0]):
-        return Geom_BSplineSurface(poles, ku, kv, mu, mv, surface.degree_u, surface.degree_v, False, False)
-    return Geom_BSplineSurface(poles, weights, ku, kv, mu, mv, surface.degree_u, surface.degree_v, False, False)
+        return Geom_BSplineSurface(poles, ku, kv, mu, mv, surface.degree_u, surface.degree_v, *wrap)
+    return Geom_BSplineSurface(poles, weights, ku, kv, mu, mv, surface.degree_u, surface.degree_v, *wrap)
 
 
 def occ_face(surface: NurbsSurface, trim: Trim | None):
@@ -104,23 +113,41 @@ def occ_face(surface: NurbsSurface, trim: Trim | None):
     return face
 
 
+def compound_of(faces) -> object:
+    """The faces ((surface, Trim or None) pairs) side by side as one OpenCASCADE compound,
+    not sewn."""
+    _require_ocp()
+    from OCP.BRep import BRep_Builder
+    from OCP.TopoDS import TopoDS_Compound
+
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    for surface, trim in faces:
+        builder.Add(compound, occ_face(surface, trim))
+    return compound
+
+
 def render_step(surface: NurbsSurface, trim: Trim | None = None, name: str = "surface") -> bytes:
     """A STEP AP214 file with the (trimmed) surface as one ADVANCED_FACE (needs OCP)."""
-    try:
-        from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
-        from OCP.IFSelect import IFSelect_RetDone
-        from OCP.Interface import Interface_Static
-        from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
-        from OCP.TCollection import TCollection_HAsciiString
-    except ImportError:
-        raise ConfigError(f"step export needs the optional package cadquery-ocp: {INSTALL_HINT}") from None
+    _require_ocp()
+    return render_step_shape(occ_face(surface, trim), name)
+
+
+def render_step_shape(shape, name: str = "surface") -> bytes:
+    """A STEP AP214 file of an OpenCASCADE shape (a face, a shell, a solid)."""
+    _require_ocp()
+    from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+    from OCP.TCollection import TCollection_HAsciiString
+
     _quiet()
-    face = occ_face(surface, trim)
     Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
     Interface_Static.SetCVal_s("write.step.unit", "MM")
     writer = STEPControl_Writer()
-    if writer.Transfer(face, STEPControl_AsIs) != IFSelect_RetDone:
-        raise ValueError("OpenCASCADE could not translate the face to STEP")
+    if writer.Transfer(shape, STEPControl_AsIs) != IFSelect_RetDone:
+        raise ValueError("OpenCASCADE could not translate the shape to STEP")
     header = APIHeaderSection_MakeHeader(writer.Model())
     header.SetTimeStamp(TCollection_HAsciiString(_FIXED_TIME))
     from psonurbs import __version__
@@ -139,6 +166,33 @@ def render_step(surface: NurbsSurface, trim: Trim | None = None, name: str = "su
                   + _FIXED_TIME.encode() + b"'", data, count=1)
     label = _step_string(name).encode()
     return re.sub(rb"= PRODUCT\('[^']*',\s*'[^']*'", b"= PRODUCT('" + label + b"','" + label + b"'", data, count=1)
+
+
+def render_iges_shape(shape) -> str:
+    """An IGES file of an OpenCASCADE shape, its faces as trimmed B-spline surfaces."""
+    _require_ocp()
+    from OCP.IGESControl import IGESControl_Writer
+
+    _quiet()
+    writer = IGESControl_Writer("MM", 0)  # 0: each face a trimmed surface (entity 144), as most readers take them
+    writer.AddShape(shape)
+    writer.ComputeModel()
+    fd, tmp = tempfile.mkstemp(suffix=".igs")
+    os.close(fd)
+    try:
+        if not writer.Write(tmp):
+            raise ValueError("OpenCASCADE could not write the IGES file")
+        with open(tmp, encoding="ascii", errors="replace") as f:
+            text = f.read()
+    finally:
+        os.unlink(tmp)
+    # the writer's date stamps (15H...): fixed, so the same fit gives the same file
+    return re.sub(r"15H\d{8}\.\d{6}", "15H19700101.000000", text)
+
+
+def _require_ocp() -> None:
+    if not step_available():
+        raise ConfigError(f"step export needs the optional package cadquery-ocp: {INSTALL_HINT}")
 
 
 def _step_string(text: str) -> str:
