@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 
 import psonurbs
-from psonurbs.config import CHOICE, FIELDS, INTEGER, NUMBER, load_config, option_help
+from psonurbs.config import AUTO_INTEGER, CHOICE, FIELDS, INTEGER, NUMBER, load_config, option_help
 from psonurbs.errors import ConfigError, PsonurbsError
 from psonurbs.formats.cad import FORMATS, check_formats
 from psonurbs.run.batch import preflight, run_batch
@@ -137,12 +137,17 @@ def jobs_option(help_text: str):
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 
 
+def auto_or_n(text: str):
+    """An option's ``auto`` or integer (checked further by the config's own rules)."""
+    return text if text == "auto" else int(text)
+
+
 def config_options(command):
     """The options that override a config key (``--seed``, ``--topology``, ...): one per key
     of the config's table that names one, in its order, with its help; the value is checked
     by the config's own rules (:meth:`psonurbs.config.FitConfig.with_overrides`)."""
     for f in reversed([f for f in FIELDS.values() if f.option]):
-        kind = click.Choice(f.choices) if f.kind == CHOICE else {INTEGER: int, NUMBER: float}[f.kind]
+        kind = click.Choice(f.choices) if f.kind == CHOICE else {INTEGER: int, NUMBER: float, AUTO_INTEGER: auto_or_n}[f.kind]
         command = click.option(f.option, type=kind, default=None, help=option_help(f.key))(command)
     return command
 
@@ -208,7 +213,7 @@ def cli() -> None:
 def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, out_dir: Path,
         seed: int | None, particles: int | None, iterations: int | None,
         topology: str | None, strategy: str | None, parametrisation: str | None,
-        tolerance: float | None, tolerance_rel: float | None, jobs: int,
+        tolerance: float | None, tolerance_rel: float | None, patches: int | str | None, jobs: int,
         scheduler: str | None, formats: tuple[str, ...], max_rmse: float | None, max_rmse_rel: float | None,
         fail_suspect: bool, fail_unmet: bool, quiet: bool) -> None:
     """Fit a NURBS surface to each CLOUD (.ply, .pcd, .xyz, .txt, .pts; .las, .laz, .e57 with the scan extra).
@@ -270,7 +275,7 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
                         Gate(max_rmse, max_rmse_rel, fail_suspect, fail_unmet), _fitter(ctx),
                         dict(seed=seed, particles=particles, iterations=iterations,
                              topology=topology, strategy=strategy, parametrisation=parametrisation,
-                             tolerance=tolerance, tolerance_rel=tolerance_rel))
+                             tolerance=tolerance, tolerance_rel=tolerance_rel, patches=patches))
     except KeyboardInterrupt as stop:
         code = _stopped(stop)
     except Exception as e:  # a bug outside a cloud's fit
@@ -404,11 +409,10 @@ def score_command(ctx: click.Context, surface_path: Path, cloud: Path, as_json: 
     --max-rmse / --max-rmse-rel, 130 interrupted, 143 terminated.
     """
     from psonurbs.formats.clouds import read_cloud
-    from psonurbs.run.scoring import load_surface, score, surface_trim
+    from psonurbs.run.scoring import load_faces, score
 
     def measure():
-        surface, document = load_surface(surface_path)
-        return score(surface, read_cloud(cloud), surface_trim(document))
+        return score(load_faces(surface_path)[0], read_cloud(cloud))
 
     figures = _run(ctx, measure)
     reason = Gate(max_rmse, max_rmse_rel).check(figures)

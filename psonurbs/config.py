@@ -127,6 +127,7 @@ class _TooLarge(ConfigError):
 # its dataclass.
 
 INTEGER, NUMBER, CHOICE, SWITCH, AUTO_SWITCH = "integer", "number", "choice", "switch", "auto-switch"
+AUTO_INTEGER = "auto-integer"  # auto or an integer
 TOLERANCE_MEASURES = ("p99", "max", "rms")  # of the point-to-surface distances a tolerance bounds
 TOPOLOGIES = ("open", "cylinder", "sphere", "torus", "auto")
 STRATEGIES = ("hybrid", "full")
@@ -138,6 +139,7 @@ MAX_TESSELLATION_VERTICES = 4_000_000  # tessellation[0] x tessellation[1]
 MIN_SWARM_POINTS = 16  # fewer cannot judge a particle (and the robust pass may leave none of them)
 MIN_WEIGHT_BOUND = 1e-6  # weight_bounds[0] at least this (its log bounds the swarm's search)
 SPHERE_MIN_V = 3  # control points along v of a sphere: the first and last collapse to the poles
+MAX_PATCHES = 32  # faces of a whole object at most
 
 # What a whole config implies for a cloud, judged by psonurbs.fitting.budget before fitting:
 ARRAY_LIMIT = 1 << 30  # bytes one array of a fit may take (1 GiB)
@@ -187,6 +189,8 @@ class Field:
             return "true or false"
         if self.kind == AUTO_SWITCH:
             return "auto, true or false"
+        if self.kind == AUTO_INTEGER:
+            return f"auto or an integer in [{self.least}, {self.most}]"
         noun = self.kind
         if self.below is not None:
             interval = f"{'(' if self.least_open else '['}{self.least}, {self.below})"
@@ -214,6 +218,13 @@ class Field:
             if not (isinstance(value, bool) or value == "auto"):
                 raise _fail(self.key, self.expected(), value)
             return value
+        if self.kind == AUTO_INTEGER:
+            if value == "auto":
+                return value
+            if not _is_int(value) or value < self.least:
+                raise _fail(self.key, self.expected(), value)
+            self._within_bound(value)
+            return int(value)
         if not self.pair:
             return self._one(value, self.expected())
         if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__len__") or len(value) != 2:
@@ -313,6 +324,9 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
           also="`tolerance` or `tolerance_rel`, not both", option="--tolerance-rel"),
     Field("tolerance_measure", CHOICE, "p99", "what the tolerance bounds: the point distances' 99th "
           "percentile, max or rms", choices=TOLERANCE_MEASURES),
+    Field("patches", AUTO_INTEGER, 1, "faces: 1, one surface; auto, split at creases, a face per region, "
+          "cut and sewn into a shell (a solid if closed); N, the N largest regions", least=1, most=MAX_PATCHES,
+          why="faces of one object", option="--patches"),
 )}
 ALIASES = {"remove_outliers": "robust"}  # another name: the key it stands for
 
@@ -392,6 +406,7 @@ class FitConfig:
     tolerance: float | None = default("tolerance")
     tolerance_rel: float | None = default("tolerance_rel")
     tolerance_measure: str = default("tolerance_measure")
+    patches: int | str = default("patches")
 
     def __post_init__(self) -> None:
         # Checked in this order, the rules between keys as soon as their keys are: the
@@ -434,7 +449,7 @@ class FitConfig:
             raise _fail("weight_bounds", "[lo, hi] with 0 < lo <= 1 <= hi", [lo, hi])
         if lo < MIN_WEIGHT_BOUND:
             raise ConfigError(f"config key 'weight_bounds': {_show(lo)} is too small: at least {MIN_WEIGHT_BOUND:g}")
-        _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim")
+        _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim", "patches")
 
     def _check_tolerance(self) -> None:
         """At most one of tolerance and tolerance_rel, each a positive finite number."""
@@ -444,6 +459,11 @@ class FitConfig:
         if self.tolerance is not None and self.tolerance_rel is not None:
             raise ConfigError("config keys 'tolerance' and 'tolerance_rel' do not go together: give one of them")
         _normalise(self, "", "tolerance_measure")
+
+    @property
+    def net_size_given(self) -> bool:
+        """The net size was given (else it is the default, or searched with a tolerance)."""
+        return self._net_size_given
 
     @property
     def has_tolerance(self) -> bool:
@@ -459,8 +479,8 @@ class FitConfig:
         """Plain JSON-able dict, same shape as the YAML (lists, nested swarm)."""
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):
-            if f.name in TOLERANCE_KEYS and not self.has_tolerance:
-                continue  # a fit without a tolerance writes the config it always wrote
+            if f.name in TOLERANCE_KEYS and not self.has_tolerance or f.name == "patches" and self.patches == 1:
+                continue  # a fit without a tolerance (of one face) writes the config it always wrote
             value = getattr(self, f.name)
             if isinstance(value, SwarmConfig):
                 value = value.to_dict()
@@ -673,7 +693,8 @@ def yaml_text(value: Any) -> str:
 
 def kind_text(f: Field) -> str:
     """The table's type column: integer, 2 numbers, string, boolean, ..."""
-    kind = {CHOICE: "string", SWITCH: "boolean", AUTO_SWITCH: "`auto` or boolean"}.get(f.kind, f.kind)
+    kind = {CHOICE: "string", SWITCH: "boolean", AUTO_SWITCH: "`auto` or boolean",
+            AUTO_INTEGER: "`auto` or integer"}.get(f.kind, f.kind)
     return f"2 {kind}s" if f.pair else kind
 
 
@@ -687,6 +708,8 @@ def allowed_text(f: Field) -> str:
         parts = [f"in {'(' if f.least_open else '['}{_number(f.least)}, {_number(f.below)})"]
     else:
         parts = [f"{'>' if f.least_open else '>='} {_number(f.least)}"]
+    if f.kind == AUTO_INTEGER:
+        parts.insert(0, "`auto`")
     if f.most is not None:
         parts.append(f"<= {_number(f.most)}")
     text = ("each " if f.pair else "") + ", ".join(parts)
