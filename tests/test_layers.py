@@ -22,7 +22,8 @@ ALLOWED = {
     "geometry": {"errors"},
     "fitting": {"geometry", "config", "errors"},
     "formats": {"geometry", "config", "errors"},
-    "run": {"fitting", "formats", "geometry", "config", "errors"},
+    "objects": {"fitting", "formats", "geometry", "config", "errors"},  # whole objects: regions, faces, joins
+    "run": {"objects", "fitting", "formats", "geometry", "config", "errors"},
     "cli": {"run", "formats", "config", "errors"},  # parses, calls and reports: no numerics
     "top": {"fitting", "formats", "geometry", "config", "errors"},  # psonurbs/__init__.py
 }

@@ -32,7 +32,7 @@ def cloud_over_plane(offsets: np.ndarray) -> np.ndarray:
 def test_score_figures_are_the_distances():
     offsets = np.linspace(-0.05, 0.05, 101)
     points = cloud_over_plane(offsets)
-    figures = score(plane(), points)
+    figures = score([(plane(), None)], points)
     d = np.abs(offsets)
     assert figures["points"] == 101
     assert figures["rmse"] == pytest.approx(np.sqrt(np.mean(d ** 2)), rel=1e-9, abs=1e-12)

@@ -115,7 +115,14 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
     try:
         if fit is None:
             from psonurbs.fitting.pipeline import fit_points as fit  # imported late: reading needs no numerics
-        result = fit(cloud.points, job.config, on_iteration=on_iteration)
+        if job.config.patches != 1:
+            from psonurbs.objects.whole import ObjectFit, fit_object
+
+            result = fit_object(cloud.points, job.config, on_iteration, fit)
+            if isinstance(result, ObjectFit):  # several faces (one region: one surface, below)
+                return _object_outcome(job, cloud, result, formats, row, start)
+        else:
+            result = fit(cloud.points, job.config, on_iteration=on_iteration)
         trim = getattr(result, "trim", None)
         notes = [*cloud.notes, *result.notes]
         surface = result.surface.to_dict()
@@ -171,6 +178,72 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
         raise
     except Exception as e:
         return FitOutcome(_failed(row, path, e, time.perf_counter() - start), path.stem)
+
+
+def _object_outcome(job: Job, cloud: Cloud, whole, formats: Sequence[str], row: Row, start: float) -> FitOutcome:
+    """The outputs of an object fitted as several faces (:mod:`psonurbs.objects.whole`):
+    JSON ``surfaces`` (each like ``surface``, with its trims, topology and metrics), one
+    mesh of every face, the faces' error curves, STEP and IGES of the sewn shell."""
+    import psonurbs
+
+    surfaces = []
+    for face in whole.faces:
+        entry = face.surface.to_dict()
+        if face.trim is not None:
+            entry["trim"] = face.trim.to_list()
+        surfaces.append({**entry, "topology": face.topology, "metrics": face.metrics,
+                         "notes": face.info.get("notes", [])})
+    notes = [*cloud.notes, *whole.notes]
+    document = {
+        "psonurbs_version": psonurbs.__version__,
+        "cloud": job.path.name,
+        "topology": "object",
+        "surfaces": surfaces,
+        "metrics": whole.metrics,
+        "fit": {"object": {"shell": whole.shell, "faces": [face.info.get("region_fit", {}) for face in whole.faces]}},
+        "notes": notes,
+        "config": job.config.to_dict(),
+    }
+    meshes = [_mesh(face.surface, face.trim, job.config.tessellation) for face in whole.faces]
+    offsets = np.cumsum([0] + [len(v) for v, _ in meshes])
+    vertices = np.concatenate([v for v, _ in meshes])
+    triangles = np.concatenate([t + o for (_, t), o in zip(meshes, offsets)])
+    extra_files, shape = {}, whole.shape
+    for fmt in formats:
+        if fmt in ("step", "iges") and shape is None:  # not joined: the faces side by side
+            from psonurbs.formats.step import compound_of
+
+            shape = compound_of([(face.surface, face.trim) for face in whole.faces])
+        if fmt == "step":
+            from psonurbs.formats.step import render_step_shape
+
+            extra_files[".step"] = render_step_shape(shape, _export_name(job.path.stem))
+        elif fmt == "iges":
+            from psonurbs.formats.step import render_iges_shape
+
+            extra_files[".igs"] = render_iges_shape(shape)
+        else:
+            notes.append(f"{fmt} holds one surface: not written for an object of {len(whole.faces)} faces "
+                         "(its faces are in the STEP and IGES files)")
+    metrics = whole.metrics
+    row.topology = "object"
+    row.net = f"{len(whole.faces)} faces"
+    tolerance = metrics.get("tolerance")
+    if tolerance is not None and not tolerance["met"]:
+        measured = {"p99": metrics["p99"], "max": metrics["max_error"], "rms": metrics["rmse"]}[tolerance["measure"]]
+        row.unmet = (f"tolerance {tolerance['value']:.1e} ({tolerance['measure']}) not met: "
+                     f"{measured:.1e} with {len(whole.faces)} faces")
+    row.rmse = _number(metrics["rmse"])
+    row.max_error = _number(metrics["max_error"])
+    row.rmse_relative = _number(metrics["rmse_relative"])
+    row.max_error_relative = _number(metrics["max_error_relative"])
+    row.notes = notes
+    row.warnings = list(whole.warnings)
+    outputs = dict(document=document, vertices=vertices, triangles=triangles,
+                   curve_header=list(whole.curve_header), curve_rows=whole.curve,
+                   obj_extra="", extra_files=extra_files)
+    row.seconds = time.perf_counter() - start
+    return FitOutcome(row, job.path.stem, outputs, dict(metrics))
 
 
 def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:

@@ -121,17 +121,28 @@ def plot_curve(header: list[str], rows: np.ndarray, title: str, path: Path) -> P
     return _save(fig, path)
 
 
-def plot_views(surface, points: np.ndarray | None, title: str, path: Path, trim=None) -> Path:
-    fig = _figure("views")
-    grid = surface.evaluate_grid(*surface.parameter_grid(41, 41))
-    mesh = None
-    if trim is not None:
-        from psonurbs.geometry.trim import trimmed_mesh
+FACE_COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive",
+                "tab:cyan", "tab:gray", "tab:red"]
 
-        verts, tris, _ = trimmed_mesh(surface, trim, 41, 41)
-        mesh = (verts, tris)
-    net = surface.control_points
-    every = [grid.reshape(-1, 3), net.reshape(-1, 3)]
+
+def plot_views(faces, points: np.ndarray | None, title: str, path: Path) -> Path:
+    """Cloud, surface and control net from four viewpoints; several faces each in its own
+    colour (their nets left out)."""
+    from psonurbs.geometry.trim import trimmed_mesh
+
+    fig = _figure("views")
+    meshes = []
+    for surface, trim in faces:
+        if trim is None:
+            grid = surface.evaluate_grid(*surface.parameter_grid(41, 41))
+            meshes.append(("grid", grid))
+        else:
+            verts, tris, _ = trimmed_mesh(surface, trim, 41, 41)
+            meshes.append(("mesh", (verts, tris)))
+    net = faces[0][0].control_points if len(faces) == 1 else None
+    every = [m.reshape(-1, 3) if kind == "grid" else m[0] for kind, m in meshes]
+    if net is not None:
+        every.append(net.reshape(-1, 3))
     if points is not None:
         every.append(points)
     bounds = np.concatenate(every)
@@ -139,17 +150,20 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path, trim=
     views = [(25, -60, "perspective"), (25, 30, "side"), (90, -90, "top"), (0, -90, "front")]
     for k, (elev, azim, name) in enumerate(views, 1):
         ax = fig.add_subplot(2, 2, k, projection="3d")
-        if mesh is None:
-            ax.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], color="tab:blue", alpha=0.45,
-                            linewidth=0, antialiased=True, shade=True)
-        else:  # the trimmed face
-            ax.plot_trisurf(mesh[0][:, 0], mesh[0][:, 1], mesh[0][:, 2], triangles=mesh[1], color="tab:blue",
-                            alpha=0.45, linewidth=0, antialiased=True, shade=True)
-        for i in range(net.shape[0]):
-            ax.plot(net[i, :, 0], net[i, :, 1], net[i, :, 2], color="tab:red", lw=0.8)
-        for j in range(net.shape[1]):
-            ax.plot(net[:, j, 0], net[:, j, 1], net[:, j, 2], color="tab:red", lw=0.8)
-        ax.scatter(net[..., 0].ravel(), net[..., 1].ravel(), net[..., 2].ravel(), color="tab:red", s=10)
+        for f, (kind, m) in enumerate(meshes):
+            colour = FACE_COLOURS[f % len(FACE_COLOURS)]
+            if kind == "grid":
+                ax.plot_surface(m[..., 0], m[..., 1], m[..., 2], color=colour, alpha=0.45,
+                                linewidth=0, antialiased=True, shade=True)
+            elif len(m[1]):  # a trimmed face
+                ax.plot_trisurf(m[0][:, 0], m[0][:, 1], m[0][:, 2], triangles=m[1], color=colour,
+                                alpha=0.45, linewidth=0, antialiased=True, shade=True)
+        if net is not None:
+            for i in range(net.shape[0]):
+                ax.plot(net[i, :, 0], net[i, :, 1], net[i, :, 2], color="tab:red", lw=0.8)
+            for j in range(net.shape[1]):
+                ax.plot(net[:, j, 0], net[:, j, 1], net[:, j, 2], color="tab:red", lw=0.8)
+            ax.scatter(net[..., 0].ravel(), net[..., 1].ravel(), net[..., 2].ravel(), color="tab:red", s=10)
         if drawn is not None:
             ax.scatter(drawn[:, 0], drawn[:, 1], drawn[:, 2], color="k", s=0.6, alpha=0.5,
                        depthshade=False)
@@ -161,17 +175,17 @@ def plot_views(surface, points: np.ndarray | None, title: str, path: Path, trim=
             ax.set_yticks([])
         ax.set_title(name, fontsize=10)
         ax.tick_params(labelsize=7)
-    what = "cloud (black), surface (blue), control net (red)" if points is not None \
-        else "surface (blue), control net (red); no cloud found"
+    shown = "surface (blue), control net (red)" if net is not None else f"{len(faces)} faces (a colour each)"
+    what = f"cloud (black), {shown}" if points is not None else f"{shown}; no cloud found"
     fig.suptitle(f"{title}: {what}")
     fig.subplots_adjust(left=0.02, right=0.98, bottom=0.03, top=0.92, wspace=0.05, hspace=0.12)
     return _save(fig, path)
 
 
-def plot_distance(surface, points: np.ndarray, title: str, path: Path, trim=None) -> Path:
-    from psonurbs.run.scoring import point_distances
+def plot_distance(faces, points: np.ndarray, title: str, path: Path) -> Path:
+    from psonurbs.run.scoring import nearest_distances
 
-    distances = point_distances(surface, points, trim)
+    distances = nearest_distances(faces, points)
     fig = _figure("distance")
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     keep = np.arange(len(points)) if len(points) <= MAX_DRAWN_POINTS else \
@@ -292,11 +306,11 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
     unusable JSON or cloud, :class:`ConfigError` without matplotlib.
     """
     from psonurbs.formats.clouds import read_cloud
-    from psonurbs.run.scoring import load_surface, surface_trim
+    from psonurbs.run.scoring import load_faces
 
     _matplotlib()
     json_path = Path(json_path)
-    surface, document = load_surface(json_path)
+    faces, document = load_faces(json_path)
     stem = json_path.stem
     out = Path(out_dir) if out_dir is not None else json_path.parent
     try:
@@ -317,12 +331,16 @@ def plot_result(json_path: str | os.PathLike, out_dir: str | os.PathLike | None 
         written.append(plot_curve(*curve, title, out / f"{stem}_curve.png"))
     else:
         notes.append(f"no error curve {stem}_error.csv beside the JSON: skipped {stem}_curve.png")
-    trim = surface_trim(document)
-    written.append(plot_views(surface, points, title, out / f"{stem}_views.png", trim))
+    written.append(plot_views(faces, points, title, out / f"{stem}_views.png"))
     if points is not None:
-        written.append(plot_distance(surface, points, title, out / f"{stem}_distance.png", trim))
-    written.append(plot_domain(surface, trim, points, title, out / f"{stem}_domain.png"))
-    written.append(plot_basis(surface, title, out / f"{stem}_basis.png"))
+        written.append(plot_distance(faces, points, title, out / f"{stem}_distance.png"))
+    if len(faces) == 1:
+        surface, trim = faces[0]
+        written.append(plot_domain(surface, trim, points, title, out / f"{stem}_domain.png"))
+        written.append(plot_basis(surface, title, out / f"{stem}_basis.png"))
+    else:
+        notes.append(f"an object of {len(faces)} faces: {stem}_domain.png and {stem}_basis.png draw one "
+                     "surface, skipped")
     tolerance = (document.get("fit") or {}).get("tolerance")
     if isinstance(tolerance, dict) and tolerance.get("searched"):
         written.append(plot_tolerance(tolerance, title, out / f"{stem}_tolerance.png"))

@@ -14,16 +14,16 @@ import numpy as np
 from psonurbs.errors import InputError, existing_file
 from psonurbs.geometry.nurbs import NurbsSurface
 
-__all__ = ["load_surface", "point_distances", "score", "PERCENTILES"]
+__all__ = ["load_faces", "load_surface", "point_distances", "nearest_distances", "score", "PERCENTILES"]
 
 PERCENTILES = (50, 90, 95, 99)
 
 
-def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
-    """The surface of a fit's ``STEM.json`` (or of a bare surface mapping), and the document.
-
-    Raises :class:`InputError` naming the file for anything that is not a surface.
-    """
+def load_faces(path: str | os.PathLike) -> tuple[list[tuple[NurbsSurface, object]], dict]:
+    """The faces of a fit's ``STEM.json``, each (surface, its Trim or None): the one
+    ``surface``, the ``surfaces`` of an object of several faces, or a bare surface
+    mapping; and the document. Raises :class:`InputError` naming the file for anything
+    that is not a surface."""
     path = existing_file(path, "a surface JSON file", InputError)
     name = str(path)
     try:
@@ -36,9 +36,23 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
         raise InputError(f"{name}: cannot read file ({e.strerror or e})") from None
     if not isinstance(document, dict):
         raise InputError(f"{name}: not a surface JSON file (expected an object)")
-    data = document.get("surface", document)
-    if not isinstance(data, dict):
-        raise InputError(f"{name}: 'surface' is not an object")
+    several = document.get("surfaces")
+    entries = several if isinstance(several, list) and several else [document.get("surface", document)]
+    faces = []
+    for data in entries:
+        if not isinstance(data, dict):
+            raise InputError(f"{name}: 'surface' is not an object")
+        faces.append((_surface_of(data, name), _trim_of(data, name)))
+    return faces, document
+
+
+def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
+    """The (first) surface of a fit's ``STEM.json`` and the document (:func:`load_faces`)."""
+    faces, document = load_faces(path)
+    return faces[0][0], document
+
+
+def _surface_of(data: dict, name: str) -> NurbsSurface:
     missing = [k for k in ("degree_u", "degree_v", "knots_u", "knots_v", "control_points")
                if k not in data]
     if missing:
@@ -49,7 +63,16 @@ def load_surface(path: str | os.PathLike) -> tuple[NurbsSurface, dict]:
         raise InputError(f"{name}: invalid surface: {e}") from None
     if not np.all(np.isfinite(surface.control_points)):
         raise InputError(f"{name}: invalid surface: control points are not finite")
-    return surface, document
+    return surface
+
+
+def _trim_of(data: dict, name: str):
+    from psonurbs.geometry.trim import Trim
+
+    try:
+        return Trim.from_list(data.get("trim"))
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{name}: invalid trim loops: {e}") from None
 
 
 def point_distances(surface: NurbsSurface, points: np.ndarray, trim=None) -> np.ndarray:
@@ -67,26 +90,21 @@ def point_distances(surface: NurbsSurface, points: np.ndarray, trim=None) -> np.
     return np.asarray(distances, float)
 
 
-def surface_trim(document: dict):
-    """The trim of a fit's document (``surface.trim``), or None when it is untrimmed."""
-    from psonurbs.geometry.trim import Trim
-
-    data = document.get("surface", document)
-    try:
-        return Trim.from_list(data.get("trim"))
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(f"invalid trim loops: {e}") from None
+def nearest_distances(faces: list[tuple[NurbsSurface, object]], points: np.ndarray) -> np.ndarray:
+    """Distance of each point (N, 3) to its nearest face (surface, trim or None), (N,)."""
+    return np.min([point_distances(surface, points, trim) for surface, trim in faces], axis=0)
 
 
-def score(surface: NurbsSurface, points: np.ndarray, trim=None) -> dict:
-    """Figures of the distances from ``points`` to ``surface`` (its trimmed face with ``trim``).
+def score(faces: list[tuple[NurbsSurface, object]], points: np.ndarray) -> dict:
+    """Figures of the distances from ``points`` to their nearest face ((surface, trim or
+    None) pairs, :func:`load_faces`).
 
     ``rmse``, ``max_error``, ``mean_error`` and the percentiles ``p50`` ... ``p99``
     are in the cloud's units; ``*_relative`` are divided by the cloud's bounding-box
     diagonal (``bbox_diagonal``).
     """
     points = np.asarray(points, float).reshape(-1, 3)
-    d = point_distances(surface, points, trim)
+    d = nearest_distances(faces, points)
     diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     out = {
         "points": int(len(points)),

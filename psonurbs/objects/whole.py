@@ -1,0 +1,156 @@
+"""A whole object fitted as several faces: regions -> a face each -> joined.
+
+With ``patches: auto`` (or N) the cloud is split into regions
+(:mod:`psonurbs.objects.regions`); a cloud that stays one region is fitted as one surface
+with ``topology: auto``, as ``patches: 1`` would with it. Otherwise each region is fitted
+by the single-surface pipeline with ``topology: auto`` (a cylinder's wall, a flat cap, a sphere's end each get
+theirs) and the object's tolerance in cloud units, untrimmed; the faces are then extended,
+cut where they cross, the pieces the data hold kept and sewn
+(:mod:`psonurbs.objects.join`). Every point is measured to its nearest kept face, trims
+included: the object's rmse, max and 99th percentile. Without OpenCASCADE (the optional
+``cadquery-ocp``) the faces are not joined: each is trimmed to its own data's footprint.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from psonurbs.fitting.pipeline import CURVE_HEADER, FitResult, fit_points
+from psonurbs.formats.step import step_available
+from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
+from psonurbs.geometry.trim import Trim, distances_to_face
+
+from .regions import segment
+
+
+@dataclass(frozen=True)
+class Face:
+    """One face of the object: its (extended) surface in cloud units, its loops, its
+    topology, the region it was fitted to and the region fit's notes and info."""
+
+    surface: NurbsSurface
+    trim: Trim | None
+    topology: str
+    region: int
+    metrics: dict
+    info: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ObjectFit:
+    """The faces, the object's metrics (over every point, to its nearest face), the
+    shell's report (None when not joined), notes, the error curve of the faces' swarms
+    together (:func:`object_curve`) and the OpenCASCADE shape for STEP (None if not joined)."""
+
+    faces: tuple[Face, ...]
+    metrics: dict
+    shell: dict | None
+    notes: list[str]
+    curve: np.ndarray
+    warnings: list[str] = field(default_factory=list)
+    shape: object = field(default=None, repr=False)
+    curve_header: list[str] = field(default_factory=lambda: list(CURVE_HEADER))
+
+
+def object_curve(curves: list[np.ndarray], points: list[int]) -> np.ndarray:
+    """The faces' error curves (each (I_k, 3): iteration, best, mean RMSE) as one (I, 3):
+    at iteration i the RMSE over all their points, sqrt(sum n_k e_k(i)^2 / sum n_k), a
+    shorter curve holding its last row."""
+    length = max(len(c) for c in curves)
+    held = [np.vstack([c, np.repeat(c[-1:], length - len(c), axis=0)]) for c in curves]
+    n = np.asarray(points, float)[:, None]
+    best, mean = (np.sqrt(np.sum(n * np.array([h[:, k] for h in held]) ** 2, axis=0) / n.sum()) for k in (1, 2))
+    return np.column_stack([np.arange(1, length + 1), best, mean])
+
+
+def face_config(config, diagonal: float, joined: bool):
+    """A region's config: topology auto, one patch, the object's tolerance in cloud units,
+    untrimmed when the faces are joined (the join trims them)."""
+    d = config.to_dict()
+    d.update(topology="auto", patches=1)
+    if config.tolerance_rel is not None:
+        d.update(tolerance=config.tolerance_rel * diagonal, tolerance_rel=None)
+    if joined:
+        d["trim"] = False
+    if not config.net_size_given:
+        d.pop("net_size", None)
+    from psonurbs.config import config_from_dict
+
+    return config_from_dict({k: v for k, v in d.items() if v is not None}, source="a face's config")
+
+
+def nearest_face(faces: list[tuple[NurbsSurface, Trim | None]], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's (N, 3) distance to its nearest face (trims included) and that face."""
+    distances = np.empty((len(faces), len(points)))
+    feet = {}
+    for k, (surface, trim) in enumerate(faces):
+        if id(surface) not in feet:
+            feet[id(surface)] = closest_parameters(surface, points)
+        uv, d = feet[id(surface)]
+        distances[k] = d if trim is None else distances_to_face(surface, trim, points, uv, d)
+    nearest = np.argmin(distances, axis=0)
+    return distances[nearest, np.arange(len(points))], nearest
+
+
+def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
+               fit: Callable = fit_points) -> ObjectFit | FitResult:
+    """The object's faces; a cloud that is one region is one face, fitted as one surface
+    with ``topology: auto`` (its :class:`FitResult`)."""
+    points = np.asarray(points, float)
+    regions = segment(points, None if config.patches == "auto" else int(config.patches))
+    if regions.count <= 1:
+        return fit(points, config.with_overrides(source="patches: auto", topology="auto", patches=1),
+                   on_iteration=on_iteration)
+    diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+    joined = step_available()
+    region_config = face_config(config, diagonal, joined)
+    fits: list[FitResult] = [fit(points[regions.members(r)], region_config, on_iteration=on_iteration)
+                             for r in range(regions.count)]
+    notes = [f"{regions.count} regions (creases part them); {int(np.sum(regions.labels < 0))} points "
+             "in creases' bands or in regions too small, measured to their nearest face"]
+    shell, shape, pieces = None, None, [(f.surface, f.trim, f.topology, r) for r, f in enumerate(fits)]
+    if joined:
+        from .join import join
+
+        tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
+        try:
+            done = join([f.surface for f in fits], points, tolerance, regions.spacing)
+        except Exception as e:  # OpenCASCADE's failures are many and rare: the faces stay apart
+            done, reason = None, f"{type(e).__name__}: {e}"
+        if done is not None and done.faces:
+            pieces = [(face.surface, face.trim, fits[face.region].topology, face.region) for face in done.faces]
+            shell, shape = done.to_dict(), done.shape
+            notes.append(f"{len(pieces)} faces sewn into a {'closed' if done.closed else 'open'} shell"
+                         + (f" (a solid of volume {done.volume:.6g})" if done.closed
+                            else f", {done.free_edges} free edges"))
+        else:
+            notes.append("faces not joined: OpenCASCADE could not cut them "
+                         f"({reason if done is None else 'no piece held by the data'}); each is untrimmed")
+    else:
+        notes.append("faces not joined: cutting and sewing them needs the optional package cadquery-ocp "
+                     "(pip install 'psonurbs[cad]'); each is trimmed to its own data")
+    distances, nearest = nearest_face([(s, t) for s, t, _, _ in pieces], points)
+    faces = []
+    for k, (surface, trim, topology, region) in enumerate(pieces):
+        d = distances[nearest == k]
+        faces.append(Face(surface, trim, topology, region,
+                          {"points": int(len(d)), "rmse": float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0,
+                           "region_points": int(np.sum(regions.labels == region)),
+                           "control_points": int(fits[region].metrics["control_points"])},
+                          {"region_fit": fits[region].info, "notes": fits[region].notes}))
+    rmse = float(np.sqrt(np.mean(distances ** 2)))
+    metrics = {"rmse": rmse, "max_error": float(distances.max()), "p99": float(np.percentile(distances, 99)),
+               "rmse_relative": rmse / diagonal, "max_error_relative": float(distances.max()) / diagonal,
+               "bbox_diagonal": diagonal, "points": int(len(points)), "faces": len(faces),
+               "control_points": int(sum(f.metrics["control_points"] for f in faces))}
+    if region_config.has_tolerance:
+        metrics["tolerance"] = {"value": region_config.tolerance, "measure": config.tolerance_measure,
+                                "met": bool(metrics["p99" if config.tolerance_measure == "p99" else
+                                                    "max_error" if config.tolerance_measure == "max" else "rmse"]
+                                            <= region_config.tolerance)}
+    curve = object_curve([f.curve for f in fits], [f.metrics["points"] for f in fits])
+    warnings = [f"face {r}: {w}" for r, f in enumerate(fits) for w in f.warnings]
+    return ObjectFit(tuple(faces), metrics, shell, notes, curve, warnings, shape)

@@ -1,0 +1,151 @@
+"""Whole objects (psonurbs.objects): regions split at creases, faces extended exactly,
+cut, kept where the data hold them and sewn into a closed solid."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from psonurbs.objects.regions import segment
+
+
+def can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, noise: float = 5e-4) -> np.ndarray:
+    """A closed can: a cylinder's wall and two flat discs, sampled area-uniformly (N, 3)."""
+    rng = np.random.default_rng(seed)
+    wall, disc = 2 * np.pi * radius * height, np.pi * radius ** 2
+    counts = rng.multinomial(n, np.array([wall, disc, disc]) / (wall + 2 * disc))
+    t = 2 * np.pi * rng.random(counts[0])
+    parts = [np.column_stack([radius * np.cos(t), radius * np.sin(t), height * rng.random(counts[0])])]
+    for count, z in zip(counts[1:], (0.0, height)):
+        r, a = radius * np.sqrt(rng.random(count)), 2 * np.pi * rng.random(count)
+        parts.append(np.column_stack([r * np.cos(a), r * np.sin(a), np.full(count, z)]))
+    p = np.concatenate(parts)
+    return p + noise * np.linalg.norm(np.ptp(p, axis=0)) * rng.standard_normal(p.shape)
+
+
+def test_a_can_splits_at_its_two_creases_and_a_sphere_or_a_rough_sheet_stays_one_region():
+    regions = segment(can(6000))
+    assert regions.count == 3
+    sizes = np.bincount(regions.labels[regions.labels >= 0])
+    assert sizes[0] > 2.5 * sizes[1] and abs(sizes[1] - sizes[2]) < 0.2 * sizes[1]  # the wall, two equal discs
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal((4000, 3))
+    assert segment(d / np.linalg.norm(d, axis=1, keepdims=True)).count == 1
+    xy = rng.random((4000, 2))
+    rough = np.column_stack([xy, 0.1 * np.sin(3 * xy[:, 0]) + 0.004 * rng.standard_normal(4000)])
+    assert segment(rough).count == 1
+
+
+def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
+    from conftest import open_surface
+
+    s = open_surface(polynomial=True)
+    longer = s.restricted((-0.2, 1.1), (-0.1, 1.3))
+    u, v = np.random.default_rng(2).random((2, 200))
+    size = np.ptp(s.control_points.reshape(-1, 3), axis=0).max()
+    assert np.abs(longer.evaluate((u + 0.2) / 1.3, (v + 0.1) / 1.4) - s.evaluate(u, v)).max() < 1e-13 * size
+    assert longer.shape == s.shape
+
+
+def test_a_closed_direction_goes_to_opencascade_as_a_periodic_b_spline():
+    pytest.importorskip("OCP")
+    from conftest import closed_u_surface
+
+    from psonurbs.formats.step import occ_surface
+
+    s = closed_u_surface()
+    geom = occ_surface(s, periodic=True)
+    assert geom.IsUPeriodic() and not geom.IsVPeriodic()
+    for u, v in np.random.default_rng(3).random((20, 2)):
+        p = geom.Value(float(u), float(v))
+        assert np.allclose([p.X(), p.Y(), p.Z()], s.evaluate(np.array([u]), np.array([v]))[0], atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def fitted_can(tmp_path_factory):
+    """A can fitted with ``--patches auto`` (one particle: the faces' classical fits)."""
+    pytest.importorskip("OCP")
+    from cli.main import cli
+
+    out = tmp_path_factory.mktemp("can")
+    points = can(4000)
+    cloud = out / "can.xyz"
+    np.savetxt(cloud, points)
+    result = CliRunner().invoke(cli, ["fit", str(cloud), "-o", str(out), "--patches", "auto", "--tolerance-rel",
+                                      "2e-3", "--particles", "1", "--iterations", "1", "--format", "step", "-q"])
+    assert result.exit_code == 0, result.output
+    return out, points, json.loads((out / "can.json").read_text())
+
+
+def test_a_can_becomes_three_faces_sewn_into_a_closed_valid_solid_of_its_volume(fitted_can):
+    out, points, doc = fitted_can
+    assert doc["topology"] == "object" and "surface" not in doc
+    assert len(doc["surfaces"]) == 3 and sorted(f["topology"] for f in doc["surfaces"]) == ["cylinder", "open", "open"]
+    assert all(f["trim"] for f in doc["surfaces"])
+    assert doc["fit"]["object"]["shell"]["closed"] and doc["fit"]["object"]["shell"]["valid"]
+    assert doc["metrics"]["p99"] <= doc["metrics"]["tolerance"]["value"] and doc["metrics"]["tolerance"]["met"]
+    true_volume = np.pi * 0.5 ** 2 * 1.2
+    assert doc["fit"]["object"]["shell"]["volume"] == pytest.approx(true_volume, rel=0.01)
+
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(out / "can.step"))
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    counts = []
+    for kind in (TopAbs_SOLID, TopAbs_FACE):
+        explorer, n = TopExp_Explorer(shape, kind), 0
+        while explorer.More():
+            n, _ = n + 1, explorer.Next()
+        counts.append(n)
+    assert counts == [1, 3] and BRepCheck_Analyzer(shape).IsValid()
+    props = GProp_GProps()
+    BRepGProp.VolumeProperties_s(shape, props, 1e-7, False)  # adaptive integration (the plain rule is 1-2% off)
+    assert abs(props.Mass()) == pytest.approx(true_volume, rel=0.01)
+
+
+def test_every_point_of_the_can_lies_on_its_faces_mesh(fitted_can):
+    out, points, doc = fitted_can
+    from scipy.spatial import cKDTree
+
+    from psonurbs.formats.clouds import load_cloud
+
+    mesh = load_cloud(out / "can.ply").points  # the mesh's vertices, every face's
+    spacing = np.median(cKDTree(points).query(points, 2)[0][:, 1])
+    assert cKDTree(mesh).query(points)[0].max() < 3 * spacing
+    diagonal = np.linalg.norm(np.ptp(points, axis=0))
+    assert doc["metrics"]["rmse"] < 1.5e-3 * diagonal
+
+
+def test_patches_auto_on_one_smooth_surface_is_the_one_surface_fit(tmp_path):
+    from cli.main import cli
+
+    rng = np.random.default_rng(4)
+    xy = rng.random((1500, 2))
+    np.savetxt(tmp_path / "sheet.xyz", np.column_stack([xy, 0.2 * np.sin(2 * xy[:, 0]) * xy[:, 1]]))
+    docs = []  # one region: one surface, its topology chosen (auto), as patches 1 with topology auto
+    for patches in ("1", "auto"):
+        result = CliRunner().invoke(cli, ["fit", str(tmp_path / "sheet.xyz"), "-o", str(tmp_path / patches),
+                                          "--patches", patches, "--topology", "auto", "--particles", "2",
+                                          "--iterations", "2", "-q"])
+        assert result.exit_code == 0, result.output
+        docs.append(json.loads((tmp_path / patches / "sheet.json").read_text()))
+    assert docs[0]["surface"] == docs[1]["surface"] and "patches" not in docs[0]["config"]
+    assert docs[1]["config"]["patches"] == "auto"
+
+
+@pytest.mark.parametrize("value", ["0", "x", "33", "2.5"])
+def test_a_bad_patches_value_is_exit_2_with_one_line(tmp_path, value):
+    from cli.main import cli
+
+    np.savetxt(tmp_path / "c.xyz", np.random.default_rng(5).random((100, 3)))
+    result = CliRunner().invoke(cli, ["fit", str(tmp_path / "c.xyz"), "-o", str(tmp_path), "--patches", value])
+    assert result.exit_code == 2 and "patches" in result.output
