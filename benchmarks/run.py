@@ -307,6 +307,11 @@ source's units):
 
 To score LAS/LAZ or E57 scans, fit them with `psonurbs fit` and give the scorer the same
 points as PLY or text (`benchmarks/score.py` reads PLY and x y z text only).
+
+## Whole objects
+
+Objects of several faces (`--patches auto`), their STEP read back by OpenCASCADE:
+[objects.md](objects.md), written by `python3 benchmarks/objects.py --docs`.
 """
 
 

@@ -50,6 +50,12 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
                           parameter domain, the first the outer boundary, the others holes.
                           Every figure is then taken on the trimmed surface (even-odd rule
                           over all loops); STEM.ply is expected to be the trimmed mesh.
+A JSON of several faces (``"surfaces"``, ``psonurbs fit --patches auto``) is scored as one
+object (:func:`score_object`): rmse, p99, max to the nearest trimmed face, far_max (the
+farthest point from every face in median spacings of the points, nearest-neighbour
+distances), faces, and with --gt truth_rms, truth_max (the faces' samples to the truth) and
+cover_max (the truth's vertices to the nearest face).
+
 Exit status 0 when it could score, 2 when an output is missing or malformed.
 """
 from __future__ import annotations
@@ -659,6 +665,36 @@ def score(cloud: Path, outdir: Path, gt: Path | None = None, stem: str | None = 
     return out
 
 
+def score_object(cloud: Path, outdir: Path, gt: Path | None = None, stem: str | None = None,
+                 res: int = 101, cover_samples: int = 20000) -> dict:
+    """An object of several trimmed faces (JSON ``surfaces``): see the module; cover_max
+    over at most ``cover_samples`` of the truth's vertices (a fixed draw)."""
+    stem = stem or cloud.stem
+    points = read_points(cloud)
+    diag = float(np.linalg.norm(points.max(0) - points.min(0)))
+    doc = json.loads((outdir / f"{stem}.json").read_text())
+    faces = [Surface(face) for face in doc["surfaces"]]
+    d = np.min([SurfaceDistance(face)(points) for face in faces], axis=0) / diag
+    spacing = float(np.median(cKDTree(points).query(points, 2)[0][:, 1])) / diag
+    out: dict = {"points": len(points), "faces": len(faces), "rmse": float(np.sqrt(np.mean(d * d))),
+                 "p99": float(np.quantile(d, 0.99)), "max": float(d.max()), "far_max": float(d.max() / spacing)}
+    if gt is not None:
+        truth = np.load(gt)
+        samples = []
+        for face in faces:
+            us, vs = face.parameters(np.linspace(0, 1, res), np.linspace(0, 1, res))
+            uu, vv = np.meshgrid(us, vs, indexing="ij")
+            samples.append(face.grid(us, vs).reshape(-1, 3)[face.inside(uu.ravel(), vv.ravel())])
+        t = MeshDistance(truth["vertices"], truth["triangles"])(np.concatenate(samples)) / diag
+        vertices = truth["vertices"]
+        if len(vertices) > cover_samples:
+            vertices = vertices[np.random.default_rng(0).choice(len(vertices), cover_samples, replace=False)]
+        c = np.min([SurfaceDistance(face)(vertices) for face in faces], axis=0) / diag
+        out.update(truth_rms=float(np.sqrt(np.mean(t * t))), truth_max=float(t.max()), cover_max=float(c.max()),
+                   noise=float(truth["noise"]))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cloud", type=Path)
@@ -668,7 +704,10 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=301, help="parameter grid of the surface samples (default 301)")
     args = ap.parse_args(argv)
     try:
-        figures = score(args.cloud, args.outdir, args.gt, args.stem, args.res)
+        stem = args.stem or args.cloud.stem
+        several = "surfaces" in json.loads((args.outdir / f"{stem}.json").read_text())
+        figures = score_object(args.cloud, args.outdir, args.gt, args.stem) if several else \
+            score(args.cloud, args.outdir, args.gt, args.stem, args.res)
     except (OSError, KeyError, ValueError, json.JSONDecodeError) as e:
         print(json.dumps({"error": f"{type(e).__name__}: {e}"}))
         return 2

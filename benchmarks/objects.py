@@ -1,0 +1,299 @@
+#!/usr/bin/env python3
+"""Whole objects of several faces: ``psonurbs fit --patches auto`` end to end, its STEP
+read back by OpenCASCADE.
+
+    python benchmarks/objects.py --out DIR [--only can shaft] [--seed N] [--scorer SCORE_PY]
+    python benchmarks/objects.py --out DIR --clouds scan.ply other.ply --tolerance-rel 4e-3
+    python benchmarks/objects.py --docs          # every object, written to docs/objects.md
+
+Each object is a list of true faces, maps (u, v) in [0, 1]^2 -> xyz, sampled
+area-uniformly (N points in all) with Gaussian noise (a fraction of the bounding-box
+diagonal); its ground truth is the faces' union as one triangle mesh, its volume known in
+closed form. Each is fitted with orders 4 x 4, ``patches: auto`` and a p99 tolerance of
+2e-3 of the diagonal, and written as STEP. One row per object:
+
+  faces / true      faces written, faces of the truth
+  p99, truth_rms, cover_max   of the JSON's faces (``benchmarks/score.py``, or --scorer),
+                    relative to the diagonal; far_max: the farthest point from every face
+                    in median nearest-neighbour spacings
+  solids, shells, free, valid   the STEP read back: solids, shells, free edges (a closed
+                    shell has none), BRepCheck validity
+  volume err        the solid's volume (adaptive integration) against the true one
+  gap               the widest gap between two faces' edges (the sewing's edge tolerance)
+  seconds           the fit's wall time
+
+``--clouds`` fits other clouds (real scans of whole objects) the same way, without a truth.
+Needs the optional package cadquery-ocp.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cases import ply  # noqa: E402
+
+TAU = 2.0 * np.pi
+Face = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def wall(r0: float, r1: float, z0: float, z1: float) -> Face:
+    """A cone's (a cylinder's when r0 = r1) side between heights z0 and z1."""
+    def face(u, v):
+        r = r0 + (r1 - r0) * v
+        return np.stack([r * np.cos(TAU * u), r * np.sin(TAU * u), z0 + (z1 - z0) * v], -1)
+    return face
+
+
+def ring(r0: float, r1: float, z: float) -> Face:
+    """A flat annulus (a disc when r0 = 0) at height z."""
+    def face(u, v):
+        r = r0 + (r1 - r0) * v
+        return np.stack([r * np.cos(TAU * u), r * np.sin(TAU * u), np.full_like(u, z)], -1)
+    return face
+
+
+def dome(r: float, z: float, up: bool) -> Face:
+    """A hemisphere of radius r on the circle at height z, up or down."""
+    s = 1.0 if up else -1.0
+    def face(u, v):
+        c = np.cos(0.5 * np.pi * v)
+        return np.stack([r * c * np.cos(TAU * u), r * c * np.sin(TAU * u), z + s * r * np.sin(0.5 * np.pi * v)], -1)
+    return face
+
+
+def square(origin, a, b) -> Face:
+    """The parallelogram origin + u a + v b."""
+    o, a, b = (np.asarray(x, float) for x in (origin, a, b))
+    return lambda u, v: o + u[..., None] * a + v[..., None] * b
+
+
+def box(x: float, y: float, z: float) -> list[Face]:
+    return [square((0, 0, 0), (x, 0, 0), (0, y, 0)), square((0, 0, z), (x, 0, 0), (0, y, 0)),
+            square((0, 0, 0), (x, 0, 0), (0, 0, z)), square((0, y, 0), (x, 0, 0), (0, 0, z)),
+            square((0, 0, 0), (0, y, 0), (0, 0, z)), square((x, 0, 0), (0, y, 0), (0, 0, z))]
+
+
+@dataclass(frozen=True)
+class Object:
+    name: str
+    faces: list[Face]
+    volume: float
+    points: int
+    note: str
+    noise: float = 5e-4
+
+
+OBJECTS = {o.name: o for o in [
+    Object("can", [wall(0.5, 0.5, 0.0, 1.2), ring(0.0, 0.5, 0.0), ring(0.0, 0.5, 1.2)], np.pi * 0.25 * 1.2, 8000,
+           "a cylinder and two flat caps, creases at the rims"),
+    Object("capsule", [wall(0.4, 0.4, 0.0, 1.0), dome(0.4, 0.0, False), dome(0.4, 1.0, True)],
+           np.pi * 0.16 * 1.0 + 4.0 / 3.0 * np.pi * 0.064, 8000, "a cylinder and two hemispheres: tangent joins"),
+    Object("shaft", [wall(0.5, 0.5, 0.0, 0.6), wall(0.3, 0.3, 0.6, 1.4), ring(0.0, 0.5, 0.0), ring(0.3, 0.5, 0.6),
+                     ring(0.0, 0.3, 1.4)], np.pi * (0.25 * 0.6 + 0.09 * 0.8), 10000,
+           "two coaxial cylinders, the step between them and two end faces"),
+    Object("box", box(1.0, 0.7, 0.4), 1.0 * 0.7 * 0.4, 8000, "six flat faces, three meeting at each corner"),
+    Object("frustum", [wall(0.5, 0.25, 0.0, 0.8), ring(0.0, 0.5, 0.0), ring(0.0, 0.25, 0.8)],
+           np.pi * 0.8 / 3.0 * (0.25 + 0.125 + 0.0625), 8000, "a cone's side and two discs: 63 and 117 degree creases"),
+    Object("washer", [ring(0.25, 0.6, 0.0), ring(0.25, 0.6, 0.3), wall(0.6, 0.6, 0.0, 0.3), wall(0.25, 0.25, 0.0, 0.3)],
+           np.pi * (0.36 - 0.0625) * 0.3, 8000, "a ring with a hole through it: two annuli, two walls"),
+]}
+
+
+def sample(obj: Object, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cloud (N, 3), and the truth as one mesh (vertices, triangles)."""
+    rng = np.random.default_rng(seed)
+    grid = np.linspace(0.0, 1.0, 161)
+    meshes, areas = [], []
+    for face in obj.faces:
+        uu, vv = np.meshgrid(grid, grid, indexing="ij")
+        vertices = face(uu.ravel(), vv.ravel())
+        k = np.arange(160)
+        i, j = np.meshgrid(k, k, indexing="ij")
+        a, b = (i * 161 + j).ravel(), ((i + 1) * 161 + j).ravel()
+        triangles = np.concatenate([np.column_stack([a, b, b + 1]), np.column_stack([a, b + 1, a + 1])])
+        e1, e2 = vertices[triangles[:, 1]] - vertices[triangles[:, 0]], vertices[triangles[:, 2]] - vertices[triangles[:, 0]]
+        meshes.append((vertices, triangles))
+        areas.append(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1))
+    counts = rng.multinomial(obj.points, np.array([a.sum() for a in areas]) / sum(a.sum() for a in areas))
+    cloud = []
+    for (vertices, triangles), area, count in zip(meshes, areas, counts):
+        pick = rng.choice(len(triangles), count, p=area / area.sum())
+        r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
+        t = vertices[triangles[pick]]
+        cloud.append((1 - r1)[:, None] * t[:, 0] + (r1 * (1 - r2))[:, None] * t[:, 1] + (r1 * r2)[:, None] * t[:, 2])
+    points = np.concatenate(cloud)
+    diagonal = np.linalg.norm(np.ptp(points, axis=0))
+    points = rng.permutation(points + obj.noise * diagonal * rng.standard_normal(points.shape))
+    offsets = np.cumsum([0] + [len(v) for v, _ in meshes])
+    return (points, np.concatenate([v for v, _ in meshes]),
+            np.concatenate([t + o for (_, t), o in zip(meshes, offsets)]))
+
+
+def step_figures(path: Path) -> dict:
+    """The STEP file read back: solids, shells, faces, free edges, validity, volume, gap."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.ShapeAnalysis import ShapeAnalysis_FreeBounds
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(path))
+    reader.TransferRoots()
+    shape = reader.OneShape()
+
+    def count(kind) -> int:
+        n, explorer = 0, TopExp_Explorer(shape, kind)
+        while explorer.More():
+            n, _ = n + 1, explorer.Next()
+        return n
+
+    free = ShapeAnalysis_FreeBounds(shape)
+    gap, explorer = 0.0, TopExp_Explorer(shape, TopAbs_EDGE)
+    while explorer.More():
+        gap = max(gap, BRep_Tool.Tolerance_s(TopoDS.Edge(explorer.Current())))
+        explorer.Next()
+    out = {"solids": count(TopAbs_SOLID), "shells": count(TopAbs_SHELL), "step_faces": count(TopAbs_FACE),
+           "free": count_edges(free.GetOpenWires()) + count_edges(free.GetClosedWires()),
+           "valid": bool(BRepCheck_Analyzer(shape).IsValid()), "gap": gap, "volume": None}
+    if out["solids"]:
+        props = GProp_GProps()
+        BRepGProp.VolumeProperties_s(shape, props, 1e-7, False)
+        out["volume"] = abs(props.Mass())
+    return out
+
+
+def count_edges(shape) -> int:
+    from OCP.TopAbs import TopAbs_EDGE
+    from OCP.TopExp import TopExp_Explorer
+
+    n, explorer = 0, TopExp_Explorer(shape, TopAbs_EDGE)
+    while explorer.More():
+        n, _ = n + 1, explorer.Next()
+    return n
+
+
+def fit(cloud: Path, out: Path, config: Path | None, extra: list[str]) -> float:
+    start = time.perf_counter()
+    cmd = ["psonurbs", "fit", str(cloud), "-o", str(out), "--format", "step", "-q", *extra]
+    if config is not None:
+        cmd += ["-c", str(config)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode not in (0, 3):
+        raise RuntimeError(f"{cloud.name}: psonurbs exit {done.returncode}: {done.stderr.strip()[-400:]}")
+    return time.perf_counter() - start
+
+
+def scored(cloud: Path, out: Path, truth: Path | None, scorer: Path | None) -> dict:
+    script = scorer or Path(__file__).resolve().parent / "score.py"
+    cmd = [sys.executable, str(script), str(cloud), str(out)] + (["--gt", str(truth)] if truth else [])
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def row(name: str, true_faces, doc: dict, figures: dict, step: dict, volume: float | None, seconds: float) -> list:
+    err = None if volume is None or step["volume"] is None else step["volume"] / volume - 1.0
+    cells = [name, f"{len(doc.get('surfaces') or [doc['surface']])} / {true_faces}",
+             *(figures.get(k) for k in ("p99", "truth_rms", "cover_max", "far_max")),
+             step["solids"], step["shells"], step["free"], "yes" if step["valid"] else "NO",
+             None if err is None else f"{100 * err:+.2f}%", step["gap"], f"{seconds:.1f}"]
+    return ["-" if c is None else f"{c:.3g}" if isinstance(c, float) else str(c) for c in cells]
+
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "objects.md"
+
+
+def document(table: str, seed: int) -> str:
+    lines = "\n".join(f"- `{o.name}`: {o.note}; {o.points:,} points, noise {o.noise:g} of the diagonal"
+                      for o in OBJECTS.values())
+    return f"""# Whole objects
+
+`psonurbs fit --patches auto` on clouds of objects made of several faces, each fitted with
+orders 4 x 4 and a p99 tolerance of 2e-3 of the bounding-box diagonal and written as STEP,
+which OpenCASCADE then reads back. This page is written by
+
+    python3 benchmarks/objects.py --docs
+
+(seed {seed}; the repository's scorer, `benchmarks/score.py`; the cad extra). The objects:
+
+{lines}
+
+Columns (distances relative to the diagonal): `p99` of the points to their nearest face;
+`truth_rms` of the faces to the true surface; `cover_max` the true surface's farthest
+point from every face; `far_max` the farthest point from every face in median point
+spacings; the STEP read back: `solids`, `shells`, `free` edges (none: closed), BRepCheck
+`valid`; `volume err` the solid's volume against the true one; `gap` the widest gap
+between two faces' edges; `seconds` of the whole `psonurbs fit`.
+
+{table}
+"""
+
+
+HEADER = ["object", "faces / true", "p99", "truth_rms", "cover_max", "far_max", "solids", "shells", "free", "valid",
+          "volume err", "gap", "seconds"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, help="keep the clouds and results here (default: a temporary folder)")
+    ap.add_argument("--docs", action="store_true", help=f"write {DOC.name} in docs/ from every object")
+    ap.add_argument("--only", nargs="+", choices=list(OBJECTS), help="these objects only")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scorer", type=Path, help="another score.py to score the faces with")
+    ap.add_argument("--clouds", nargs="+", type=Path, default=[], help="other clouds (no truth)")
+    ap.add_argument("--tolerance-rel", default="2e-3", help="the clouds' tolerance (default 2e-3)")
+    ap.add_argument("--swarm", nargs=2, type=int, metavar=("PARTICLES", "ITERATIONS"),
+                    help="a smaller swarm (default: the config's, 40 x 300)")
+    args = ap.parse_args(argv)
+    if args.docs:
+        args.only, args.clouds, args.swarm = None, [], None
+    if args.out is None:
+        import tempfile
+
+        args.out = Path(tempfile.mkdtemp(prefix="psonurbs-objects-"))
+    args.out.mkdir(parents=True, exist_ok=True)
+    swarm = ["--particles", str(args.swarm[0]), "--iterations", str(args.swarm[1])] if args.swarm else []
+    rows = []
+    for name in ([] if args.clouds and not args.only else args.only or list(OBJECTS)):
+        obj = OBJECTS[name]
+        points, vertices, triangles = sample(obj, args.seed)
+        cloud, config, truth = args.out / f"{name}.ply", args.out / f"{name}.yaml", args.out / f"{name}.gt.npz"
+        cloud.write_bytes(ply(points))
+        config.write_text("orders: [4, 4]\npatches: auto\ntolerance_rel: 0.002\n")
+        np.savez_compressed(truth, vertices=vertices, triangles=triangles, noise=obj.noise, outliers=0.0)
+        seconds = fit(cloud, args.out, config, swarm)
+        doc = json.loads((args.out / f"{name}.json").read_text())
+        rows.append(row(name, len(obj.faces), doc, scored(cloud, args.out, truth, args.scorer),
+                        step_figures(args.out / f"{name}.step"), obj.volume, seconds))
+        print(" | ".join(rows[-1]), flush=True)
+    for cloud in args.clouds:
+        seconds = fit(cloud, args.out, None, ["--patches", "auto", "--tolerance-rel", args.tolerance_rel, *swarm])
+        doc = json.loads((args.out / f"{cloud.stem}.json").read_text())
+        rows.append(row(cloud.stem, "?", doc, scored(cloud, args.out, None, args.scorer),
+                        step_figures(args.out / f"{cloud.stem}.step"), None, seconds))
+        print(" | ".join(rows[-1]), flush=True)
+    table = "\n".join(["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER),
+                       *("| " + " | ".join(r) + " |" for r in rows)])
+    if args.docs:
+        DOC.write_text(document(table, args.seed))
+        print(f"wrote {DOC}")
+        return 0
+    print("\n" + table + f"\n\nclouds and results in {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
