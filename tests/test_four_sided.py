@@ -184,7 +184,7 @@ def test_a_four_sided_map_that_folds_gives_way_to_the_flattening(monkeypatch):
 
 def test_four_sided_parameters_skip_coarse_nets_that_cannot_hold_the_shape():
     """On the cone sector's own net (orders 3 x 2, 7 x 2 control points) the four-sided
-    parameters corrected on that net alone fit 2.8 times closer than through the ladder,
+    parameters corrected on that net alone fit 12 times closer than through the ladder,
     whose single quadratic Bezier patch cannot bend round 270 degrees; that is kept."""
     pts, _ = cone_sector(n=2000)
     pts = (pts - pts.mean(axis=0)) / np.linalg.norm(np.ptp(pts, axis=0))
@@ -193,7 +193,7 @@ def test_four_sided_parameters_skip_coarse_nets_that_cannot_hold_the_shape():
     uv, report = coarse_to_fine(layout, pts, par.uv, 1e-6, direct=True)
     ladder, direct = report[-2], report[-1]
     assert direct["direct"] and direct["net"] == [7, 2]
-    assert direct["rmse"] < ladder["rmse"] / 2.0, report
+    assert direct["rmse"] < ladder["rmse"] / 5.0, report
     kept, _ = coarse_to_fine(layout, pts, par.uv, 1e-6)
     assert not np.array_equal(uv, kept)
 
