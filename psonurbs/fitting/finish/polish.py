@@ -22,12 +22,9 @@ def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float
     value in each of ``bins`` slices of ``along``.
 
     A straight edge's points lie beyond that line by no more than their sampling
-    ``scatter``, and its lowest points do not bend: the parabola through them sags from
-    its chord by no more than ``scatter`` either. If some reach farther, or the lowest
-    points bend (a disc's edge sags half its width, while its points lie only 1.4-2.7
-    spacings past the line at 300-1,000 points), the edge is not straight (an ellipse's
-    bends away from the line, a scan's is ragged): it has no line to follow, and the
-    edge is the data's extreme, ``across`` constant.
+    ``scatter``. If some reach farther, the edge is not straight (an ellipse's bends
+    away from the line, a scan's is ragged): it has no line to follow, and the edge is
+    the data's extreme, ``across`` constant.
     """
     slices = np.minimum((along * bins).astype(int), bins - 1)
     order = np.lexsort((-across if upper else across, slices))
@@ -37,10 +34,7 @@ def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float
     b, a = np.polyfit(along[first], across[first], 1)
     line = a + b * along
     beyond = float(np.max(across - line) if upper else np.max(line - across))
-    sag = 0.0
-    if len(first) >= 4:  # the parabola's sag over the edge's length: |c| L^2 / 4
-        sag = abs(np.polyfit(along[first], across[first], 2)[0]) * np.ptp(along) ** 2 / 4.0
-    return line if max(beyond, sag) <= scatter else np.full(len(along), across.max() if upper else across.min())
+    return line if beyond <= scatter else np.full(len(along), across.max() if upper else across.min())
 
 
 def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
