@@ -264,26 +264,27 @@ def main(argv=None) -> int:
         import tempfile
 
         args.out = Path(tempfile.mkdtemp(prefix="psonurbs-objects-"))
-    args.out.mkdir(parents=True, exist_ok=True)
+    cases, results = args.out / "cases", args.out / "results"  # the fit's PLY mesh must not replace the cloud
+    cases.mkdir(parents=True, exist_ok=True)
     swarm = ["--particles", str(args.swarm[0]), "--iterations", str(args.swarm[1])] if args.swarm else []
     rows = []
     for name in ([] if args.clouds and not args.only else args.only or list(OBJECTS)):
         obj = OBJECTS[name]
         points, vertices, triangles = sample(obj, args.seed)
-        cloud, config, truth = args.out / f"{name}.ply", args.out / f"{name}.yaml", args.out / f"{name}.gt.npz"
+        cloud, config, truth = cases / f"{name}.ply", cases / f"{name}.yaml", cases / f"{name}.gt.npz"
         cloud.write_bytes(ply(points))
         config.write_text("orders: [4, 4]\npatches: auto\ntolerance_rel: 0.002\n")
         np.savez_compressed(truth, vertices=vertices, triangles=triangles, noise=obj.noise, outliers=0.0)
-        seconds = fit(cloud, args.out, config, swarm)
-        doc = json.loads((args.out / f"{name}.json").read_text())
-        rows.append(row(name, len(obj.faces), doc, scored(cloud, args.out, truth, args.scorer),
-                        step_figures(args.out / f"{name}.step"), obj.volume, seconds))
+        seconds = fit(cloud, results, config, swarm)
+        doc = json.loads((results / f"{name}.json").read_text())
+        rows.append(row(name, len(obj.faces), doc, scored(cloud, results, truth, args.scorer),
+                        step_figures(results / f"{name}.step"), obj.volume, seconds))
         print(" | ".join(rows[-1]), flush=True)
     for cloud in args.clouds:
-        seconds = fit(cloud, args.out, None, ["--patches", "auto", "--tolerance-rel", args.tolerance_rel, *swarm])
-        doc = json.loads((args.out / f"{cloud.stem}.json").read_text())
-        rows.append(row(cloud.stem, "?", doc, scored(cloud, args.out, None, args.scorer),
-                        step_figures(args.out / f"{cloud.stem}.step"), None, seconds))
+        seconds = fit(cloud, results, None, ["--patches", "auto", "--tolerance-rel", args.tolerance_rel, *swarm])
+        doc = json.loads((results / f"{cloud.stem}.json").read_text())
+        rows.append(row(cloud.stem, "?", doc, scored(cloud, results, None, args.scorer),
+                        step_figures(results / f"{cloud.stem}.step"), None, seconds))
         print(" | ".join(rows[-1]), flush=True)
     table = "\n".join(["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER),
                        *("| " + " | ".join(r) + " |" for r in rows)])
