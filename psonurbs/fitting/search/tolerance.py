@@ -108,21 +108,10 @@ class Step:
     seconds: float
     uneven: tuple[float, float]  # concentration of the excess over the knot spans along u, v
     knots: str = "uniform"  # uniform: the classical fit; swarm: the knots placed by the swarm
-    suspect: bool = False  # the fit failed a self-check (a fold, a net far outside the cloud)
-
-    @property
-    def judged(self) -> float:
-        """The error the search judges the net by: a suspect fit meets no tolerance (a
-        small net can pass near every point folded over itself: a flat disc's 4 x 4
-        patch, its parameters squeezed onto the square)."""
-        return math.inf if self.suspect else self.achieved
 
     def to_dict(self) -> dict:
-        out = {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3),
-               "knots": self.knots}
-        if self.suspect:
-            out["suspect"] = True
-        return out
+        return {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3),
+                "knots": self.knots}
 
 
 def span_concentration(uv: np.ndarray, excess: np.ndarray, surface: NurbsSurface) -> tuple[float, float]:
@@ -235,22 +224,22 @@ class NetSearch:
         return self.steps[size]
 
     def meets(self, size: tuple[int, int]) -> bool:
-        return self.step(size).judged <= self.value
+        return self.step(size).achieved <= self.value
 
     def grown(self) -> tuple[int, int] | None:
         """Grow, then bisect: the smallest meeting net on the way, or None (none met)."""
         best, meeting = self.step(self.base), None
-        while best.judged > self.value and best.judged > self.floor:
+        while best.achieved > self.value and best.achieved > self.floor:
             untried = [g for g in growths(best.net_size, best.uneven, self.largest) if g not in self.steps]
             if not untried:
                 break
             step = self.step(untried[0])
-            if step.judged <= self.value:
+            if step.achieved <= self.value:
                 meeting = step.net_size
                 break
-            if step.judged < PLATEAU * best.judged:
+            if step.achieved < PLATEAU * best.achieved:
                 best = step
-        if best.judged <= self.value:
+        if best.achieved <= self.value:
             return best.net_size
         if meeting is None:
             return None
@@ -277,7 +266,7 @@ class NetSearch:
         in either direction, so a failing net bounds every net it holds."""
         other = 1 - direction
         fails = [s[direction] for s, step in self.steps.items()
-                 if step.judged > self.value and s[other] >= size[other] and s[direction] < size[direction]]
+                 if step.achieved > self.value and s[other] >= size[other] and s[direction] < size[direction]]
         low, high = max(fails, default=self.base[direction] - 1), size[direction]
         while high - low > 1:
             middle = (low + high) // 2
@@ -292,10 +281,10 @@ def chosen_step(steps: list[Step], value: float) -> Step:
     """The fewest control points among the steps that meet ``value`` (the smaller error on
     a tie); without one, the least error (the smaller net on a tie): a larger net is never
     kept when a smaller one is as good."""
-    met = [s for s in steps if s.judged <= value]
+    met = [s for s in steps if s.achieved <= value]
     if met:
-        return min(met, key=lambda s: (s.net_size[0] * s.net_size[1], s.judged))
-    return min(steps, key=lambda s: (s.judged, s.achieved, s.net_size[0] * s.net_size[1]))
+        return min(met, key=lambda s: (s.net_size[0] * s.net_size[1], s.achieved))
+    return min(steps, key=lambda s: (s.achieved, s.net_size[0] * s.net_size[1]))
 
 
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
@@ -338,8 +327,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
         covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
         uv, dist = uv[covered], dist[covered]
         return Step(size, measure(dist, name), time.perf_counter() - start,
-                    span_concentration(uv, np.maximum(dist - value, 0.0), result.surface), knots,
-                    bool(result.warnings))
+                    span_concentration(uv, np.maximum(dist - value, 0.0), result.surface), knots)
 
     base = tuple(min(s, m) for s, m in zip(smallest_net(topology, config.orders), largest))
     uniform = NetSearch(lambda size: one_net(size, "uniform"), base, largest, value, NOISE_MARGIN * floor)
@@ -361,8 +349,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
             best, result = uniform.steps[meeting], fallback
             achieved = measure(result.distances, name)
     tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
-                 "achieved": achieved, "met": bool(achieved <= value and not result.warnings),
-                 "net_size": list(best.net_size),
+                 "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
                  "noise": sigma, "searched": [s.to_dict() for s in steps]}
     result.info["tolerance"] = tolerance
     if scores is not None:  # the delivered fit was told its topology: the choice is the first net's
