@@ -64,6 +64,7 @@ class Joined:
     volume: float | None
     free_edges: int
     gap: float
+    distances: np.ndarray = field(repr=False, default=None)  # (faces, N): each point's to each face
     shape: object = field(repr=False, default=None)  # the TopoDS shape (solid or shell)
 
     def to_dict(self) -> dict:
@@ -118,24 +119,28 @@ def _count(shape, kind) -> int:
     return n
 
 
-def held_pieces(pieces: list[tuple[NurbsSurface, Trim, float]], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Which pieces (surface, loops, area) the data (N, 3) hold, and each one's count of
-    points: each point counts for the piece nearest it (its exact distance to the
-    trimmed face, :func:`psonurbs.geometry.trim.distances_to_face`)."""
-    distances, feet = np.empty((len(pieces), len(points))), {}
-    for k, (surface, trim, _) in enumerate(pieces):
-        if trim is None:
-            distances[k] = np.inf
-            continue
+def face_distances(faces: list[tuple[NurbsSurface, Trim | None]], points: np.ndarray) -> np.ndarray:
+    """Distances (F, N) of the points (N, 3) to each face (surface, its loops or None):
+    exact, to the trimmed face (:func:`psonurbs.geometry.trim.distances_to_face`); the
+    foot points found once per surface, whatever the number of its faces."""
+    distances, feet = np.empty((len(faces), len(points))), {}
+    for k, (surface, trim) in enumerate(faces):
         if id(surface) not in feet:
             feet[id(surface)] = closest_parameters(surface, points)
         uv, d = feet[id(surface)]
-        distances[k] = distances_to_face(surface, trim, points, uv, d)
-    counts = np.bincount(np.argmin(distances, axis=0), minlength=len(pieces))
-    density = counts / np.maximum([area for _, _, area in pieces], 1e-300)
-    main = counts >= 0.05 * len(points)
+        distances[k] = d if trim is None else distances_to_face(surface, trim, points, uv, d)
+    return distances
+
+
+def held_pieces(distances: np.ndarray, areas: np.ndarray, points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which pieces the data hold, from the points' distances (F, N) to the pieces and
+    the pieces' areas (F,), and each one's count of points: each point counts for the
+    piece nearest it."""
+    counts = np.bincount(np.argmin(distances, axis=0), minlength=len(areas))
+    density = counts / np.maximum(areas, 1e-300)
+    main = counts >= 0.05 * points
     reference = np.median(density[main]) if main.any() else density.max()
-    return (density >= HELD_DENSITY * reference) & (counts >= 0.5 * MIN_SHARE * len(points)), counts
+    return (density >= HELD_DENSITY * reference) & (counts >= 0.5 * MIN_SHARE * points), counts
 
 
 def _loops(face, surface: NurbsSurface) -> Trim | None:
@@ -233,7 +238,10 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
         props = GProp_GProps()
         BRepGProp.SurfaceProperties_s(piece, props)
         described.append((grown[region[k]], _loops(piece, grown[region[k]]), float(props.Mass())))
-    held, counts = held_pieces(described, points)
+    outlined = [k for k, (_, trim, _) in enumerate(described) if trim is not None]  # a sliver has no loop
+    distances = np.full((len(pieces), len(points)), np.inf)
+    distances[outlined] = face_distances([described[k][:2] for k in outlined], points)
+    held, counts = held_pieces(distances, np.array([area for _, _, area in described]), len(points))
     kept = np.flatnonzero(held)
     sewing = BRepBuilderAPI_Sewing(tolerance)
     for k in kept:
@@ -261,4 +269,4 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
     joined = []
     for k in kept:
         joined.append(JoinedFace(region[k], *described[k], int(counts[k])))
-    return Joined(joined, closed, valid, volume, free, gap, shape)
+    return Joined(joined, closed, valid, volume, free, gap, distances[kept], shape)

@@ -20,9 +20,9 @@ import numpy as np
 from psonurbs.fitting.pipeline import CURVE_HEADER, FitResult, fit_points
 from psonurbs.formats.step import step_available
 from psonurbs.geometry.nurbs import NurbsSurface
-from psonurbs.geometry.projection import closest_parameters
-from psonurbs.geometry.trim import Trim, distances_to_face
+from psonurbs.geometry.trim import Trim
 
+from .join import face_distances
 from .regions import segment
 
 
@@ -82,19 +82,6 @@ def face_config(config, diagonal: float, joined: bool):
     return config_from_dict({k: v for k, v in d.items() if v is not None}, source="a face's config")
 
 
-def nearest_face(faces: list[tuple[NurbsSurface, Trim | None]], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's (N, 3) distance to its nearest face (trims included) and that face."""
-    distances = np.empty((len(faces), len(points)))
-    feet = {}
-    for k, (surface, trim) in enumerate(faces):
-        if id(surface) not in feet:
-            feet[id(surface)] = closest_parameters(surface, points)
-        uv, d = feet[id(surface)]
-        distances[k] = d if trim is None else distances_to_face(surface, trim, points, uv, d)
-    nearest = np.argmin(distances, axis=0)
-    return distances[nearest, np.arange(len(points))], nearest
-
-
 def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                fit: Callable = fit_points) -> ObjectFit | FitResult:
     """The object's faces; a cloud that is one region is one face, fitted as one surface
@@ -112,6 +99,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     notes = [f"{regions.count} regions (creases part them); {int(np.sum(regions.labels < 0))} points "
              "in creases' bands or in regions too small, measured to their nearest face"]
     shell, shape, pieces = None, None, [(f.surface, f.trim, f.topology, r) for r, f in enumerate(fits)]
+    distances = None
     if joined:
         from .join import join
 
@@ -122,7 +110,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
             done, reason = None, f"{type(e).__name__}: {e}"
         if done is not None and done.faces:
             pieces = [(face.surface, face.trim, fits[face.region].topology, face.region) for face in done.faces]
-            shell, shape = done.to_dict(), done.shape
+            shell, shape, distances = done.to_dict(), done.shape, done.distances
             notes.append(f"{len(pieces)} faces sewn into a {'closed' if done.closed else 'open'} shell"
                          + (f" (a solid of volume {done.volume:.6g})" if done.closed
                             else f", {done.free_edges} free edges"))
@@ -132,7 +120,10 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     else:
         notes.append("faces not joined: cutting and sewing them needs the optional package cadquery-ocp "
                      "(pip install 'psonurbs[cad]'); each is trimmed to its own data")
-    distances, nearest = nearest_face([(s, t) for s, t, _, _ in pieces], points)
+    if distances is None:
+        distances = face_distances([(s, t) for s, t, _, _ in pieces], points)
+    nearest = np.argmin(distances, axis=0)
+    distances = distances[nearest, np.arange(len(points))]  # each point's to its nearest face
     faces = []
     for k, (surface, trim, topology, region) in enumerate(pieces):
         d = distances[nearest == k]
