@@ -159,10 +159,7 @@ def fit_cloud(job: Job, cloud: Cloud, formats: Sequence[str] = (),
             from psonurbs.fitting.search.tolerance import tolerance_sentence
 
             row.unmet = tolerance_sentence(searched)
-        row.rmse = _number(metrics.get("rmse"))
-        row.max_error = _number(metrics.get("max_error"))
-        row.rmse_relative = _number(metrics.get("rmse_relative"))
-        row.max_error_relative = _number(metrics.get("max_error_relative"))
+        _row_figures(row, metrics)
         row.notes = notes
         row.warnings = list(result.warnings)
         if trim is not None and "3dm" in formats:
@@ -233,10 +230,7 @@ def _object_outcome(job: Job, cloud: Cloud, whole, formats: Sequence[str], row: 
         measured = {"p99": metrics["p99"], "max": metrics["max_error"], "rms": metrics["rmse"]}[tolerance["measure"]]
         row.unmet = (f"tolerance {tolerance['value']:.1e} ({tolerance['measure']}) not met: "
                      f"{measured:.1e} with {len(whole.faces)} faces")
-    row.rmse = _number(metrics["rmse"])
-    row.max_error = _number(metrics["max_error"])
-    row.rmse_relative = _number(metrics["rmse_relative"])
-    row.max_error_relative = _number(metrics["max_error_relative"])
+    _row_figures(row, metrics)
     row.notes = notes
     row.warnings = list(whole.warnings)
     outputs = dict(document=document, vertices=vertices, triangles=triangles,
@@ -292,6 +286,12 @@ def _mesh(surface, trim, tessellation: tuple[int, int]):
 
     vertices, triangles, _ = trimmed_mesh(surface, trim, *tessellation)
     return vertices, triangles
+
+
+def _row_figures(row: Row, metrics: dict) -> None:
+    """The summary row's rmse, max_error and their relative forms, from a fit's metrics."""
+    for key in ("rmse", "max_error", "rmse_relative", "max_error_relative"):
+        setattr(row, key, _number(metrics.get(key)))
 
 
 def _number(x) -> float | None:
