@@ -111,6 +111,50 @@ def test_step_of_a_closed_surface(tmp_path):
     assert_same_points(s, pts, uv)
 
 
+@pytest.mark.parametrize("closes, axes", [(True, (1.0, 1.0, 1.0)), (True, (1.0, 0.7, 1.6)), (False, None)],
+                         ids=["sphere", "ellipsoid", "tube"])
+def test_step_of_a_surface_closed_on_itself_is_its_solid(tmp_path, closes, axes):
+    """A sphere-topology fit (closed in u, poles at both ends of v) has no free edge: its
+    STEP is the solid it bounds, valid, of the volume it encloses (4/3 pi abc for an
+    ellipsoid, the fit within 1e-3); a tube keeps its two rims and stays one face."""
+    pytest.importorskip("OCP")
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    from psonurbs.formats.step import render_step
+
+    if closes:
+        from psonurbs.config import config_from_dict
+        from psonurbs.fitting.parameters.closed import parametrise_sphere
+        from psonurbs.fitting.parameters.topology import classical_surface
+        from psonurbs.geometry.net import NetLayout
+
+        k = np.arange(4000) + 0.5  # a Fibonacci sphere, stretched to the ellipsoid
+        z, a = 1 - 2 * k / 4000, np.pi * (1 + 5 ** 0.5) * k
+        pts = np.column_stack([np.sqrt(1 - z ** 2) * np.cos(a), np.sqrt(1 - z ** 2) * np.sin(a), z]) * axes
+        layout = NetLayout((12, 10), (3, 3), (True, False), poles=True)
+        s = classical_surface(layout, parametrise_sphere(pts), pts, config_from_dict({}))
+    else:
+        s = closed_u_surface()
+    path = tmp_path / "c.step"
+    path.write_bytes(render_step(s, None, "closed"))
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(path))
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    solids = TopExp_Explorer(shape, TopAbs_SOLID)
+    assert solids.More() == closes and len(occ_faces(shape)[0]) == 1
+    assert BRepCheck_Analyzer(shape).IsValid()
+    if closes:
+        props = GProp_GProps()
+        BRepGProp.VolumeProperties_s(shape, props, 1e-7, False)
+        assert props.Mass() == pytest.approx(4 / 3 * np.pi * np.prod(axes), rel=1e-3)
+
+
 def test_iges_trimmed_surface_read_back_by_opencascade(tmp_path):
     pytest.importorskip("OCP")
     from OCP.IGESControl import IGESControl_Reader

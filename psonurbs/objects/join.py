@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from psonurbs.fitting.finish.footprint import EDGE_OUTSET
-from psonurbs.formats.step import occ_surface
+from psonurbs.formats.step import occ_surface, sew
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.trim import Trim, distances_to_face, polygon_loop, signed_area
@@ -38,7 +38,6 @@ EXTEND = 0.05  # of the object's diagonal: how far a face reaches past its data
 EXTEND_SPACINGS = 8.0  # ... and at least this many point spacings
 HELD_DENSITY = 0.25  # a piece is kept when its points per area reach this share of the faces'
 EDGE_SAMPLES = 48  # points per edge of a trim loop read back from OpenCASCADE
-VOLUME_EPS = 1e-7  # relative accuracy of the solid's volume (OpenCASCADE's adaptive integration)
 
 
 @dataclass(frozen=True)
@@ -206,15 +205,10 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
     """The faces (each a region's fitted surface, cloud units) extended, cut, kept where
     the data (N, 3) hold them and sewn at ``tolerance``."""
     from OCP.BOPAlgo import BOPAlgo_Builder
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakeSolid, BRepBuilderAPI_Sewing
-    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
     from OCP.BRepGProp import BRepGProp
     from OCP.collections import List_TopoDS_Shape
     from OCP.GProp import GProp_GProps
-    from OCP.ShapeFix import ShapeFix_Solid
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_SHELL
-    from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
     diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
@@ -243,30 +237,9 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
     distances[outlined] = face_distances([described[k][:2] for k in outlined], points)
     held, counts = held_pieces(distances, np.array([area for _, _, area in described]), len(points))
     kept = np.flatnonzero(held)
-    sewing = BRepBuilderAPI_Sewing(tolerance)
-    for k in kept:
-        sewing.Add(pieces[k])
-    sewing.Perform()
-    sewn = sewing.SewedShape()
-    free = int(sewing.NbFreeEdges())
-    shape, volume, closed = sewn, None, False
-    shells = TopExp_Explorer(sewn, TopAbs_SHELL)
-    if free == 0 and shells.More():
-        shell = TopoDS.Shell(shells.Current())
-        shells.Next()
-        if not shells.More():
-            fix = ShapeFix_Solid(BRepBuilderAPI_MakeSolid(shell).Solid())
-            fix.Perform()
-            shape, closed = fix.Solid(), True
-            props = GProp_GProps()
-            BRepGProp.VolumeProperties_s(shape, props, VOLUME_EPS, False)  # adaptive: the plain rule is 1-2% off
-            volume = abs(float(props.Mass()))
-    valid = bool(BRepCheck_Analyzer(shape).IsValid())
-    gap, edges = 0.0, TopExp_Explorer(shape, TopAbs_EDGE)
-    while edges.More():
-        gap = max(gap, float(BRep_Tool.Tolerance_s(TopoDS.Edge(edges.Current()))))
-        edges.Next()
+    sewn = sew([pieces[k] for k in kept], tolerance)
     joined = []
     for k in kept:
         joined.append(JoinedFace(region[k], *described[k], int(counts[k])))
-    return Joined(joined, closed, valid, volume, free, gap, distances[kept], shape)
+    return Joined(joined, sewn.closed, sewn.valid, sewn.volume, sewn.free_edges, sewn.gap, distances[kept],
+                  sewn.shape)
