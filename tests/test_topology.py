@@ -181,6 +181,20 @@ def torus_cloud(n=600, seed=0, major=2.0, minor=0.6, rotation=None):
     return pts if rotation is None else pts @ rotation.as_matrix().T
 
 
+def capsule_cloud(n=1500, seed=0, radius=0.4, length=1.2, rotation=None):
+    """A cylinder with hemispherical ends, uniform over its area: closed, prolate, no crease."""
+    rng = np.random.default_rng(seed)
+    side = 2 * np.pi * radius * length
+    on_side = rng.uniform(0, side + 4 * np.pi * radius ** 2, n) < side
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a = rng.uniform(0, 2 * np.pi, n)
+    wall = np.column_stack([radius * np.cos(a), radius * np.sin(a), rng.uniform(-length / 2, length / 2, n)])
+    ends = radius * d + np.outer(np.sign(d[:, 2]) * length / 2, [0, 0, 1])
+    pts = np.where(on_side[:, None], wall, ends)
+    return pts if rotation is None else pts @ rotation.as_matrix().T
+
+
 def test_parametrise_open_uv_fills_the_unit_square_along_the_field_axes():
     rot = Rotation.from_euler("xyz", [25, -15, 40], degrees=True)
     pts = height_field(seed=0, rotation=rot)
@@ -237,6 +251,18 @@ def test_parametrise_sphere_recovers_centre_and_radius():
     assert lo < 0.1 and hi > 0.9
 
 
+@pytest.mark.parametrize("stretch, long_axis", [(1.0, None), (2.5, True), (0.4, False)])
+def test_a_closed_clouds_poles_lie_on_its_axis_of_symmetry(stretch, long_axis):
+    """A prolate cloud (capsule, egg) has its poles at its ends, an oblate one (a lentil)
+    at its flat sides: the PCA axis whose spread stands apart from the other two."""
+    rot = Rotation.from_euler("zyx", [20, 40, -30], degrees=True)
+    pts = sphere_cloud(n=3000, seed=9, centre=(0, 0, 0), radius=1.0) * [1.0, 1.0, stretch]
+    par = parametrise_sphere(rot.apply(pts))
+    if long_axis is not None:  # along z: the longest axis of a prolate cloud, the thinnest of an oblate one
+        assert angle_deg(par.info["axis"], rot.apply([0, 0, 1])) < 2.0
+    assert unsupported(par, rot.apply(pts), "sphere") is None
+
+
 def test_parametrise_torus_recovers_axis():
     rot = Rotation.from_euler("zyx", [30, 50, -20], degrees=True)
     pts = torus_cloud(rotation=rot)
@@ -262,6 +288,18 @@ def test_unsupported_sphere_needs_both_poles():
     assert "poles" in unsupported(parametrise_sphere(cap), cap, "sphere")
 
 
+def test_a_closed_end_is_no_tube_and_no_ring():
+    """A capsule's data reach its axis at both ends: neither a cylinder (two rims) nor a
+    torus (a hole through it) can carry it; an open tube's data stay a radius away."""
+    pts = capsule_cloud(seed=12)
+    for topology, parametrise in (("cylinder", parametrise_cylinder), ("torus", parametrise_torus)):
+        assert "axis" in unsupported(parametrise(pts), pts, topology)
+    tube = cylinder_cloud(n=1500, seed=12)
+    assert unsupported(parametrise_cylinder(tube), tube, "cylinder") is None
+    ring = torus_cloud(n=1500, seed=12)
+    assert unsupported(parametrise_torus(ring), ring, "torus") is None
+
+
 def test_a_few_strays_neither_close_a_gap_nor_reach_a_pole():
     # 0.3% stray points (a scan's background) scattered over what the data leave empty
     rng = np.random.default_rng(11)
@@ -283,6 +321,7 @@ def test_a_few_strays_neither_close_a_gap_nor_reach_a_pole():
     ("cylinder", lambda: cylinder_cloud(n=400, seed=6, axis=np.array([0.2, 1.0, 0.3]))),
     ("sphere", lambda: sphere_cloud(n=400, seed=7)),
     ("torus", lambda: torus_cloud(n=500, seed=8, rotation=Rotation.from_euler("y", 35, degrees=True))),
+    ("sphere", lambda: capsule_cloud(seed=10, rotation=Rotation.from_euler("xz", [30, 60], degrees=True))),
 ])
 def test_choose_topology(expected, cloud):
     pts = cloud()

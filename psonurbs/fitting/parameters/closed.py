@@ -86,14 +86,16 @@ def parametrise_cylinder(points: np.ndarray) -> Parametrisation:
 
 
 def sphere_axis(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Pole axis: along the mean direction for a cap, else the cloud's thinnest PCA axis."""
+    """Pole axis: along the mean direction for a cap, else the cloud's axis of symmetry:
+    the PCA axis whose spread s_k stands furthest from the other two (the longest of a
+    prolate cloud, s_0 / s_1 > s_1 / s_2, like a capsule or an egg; else the thinnest)."""
     d = points - centre
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
     mean = d.mean(axis=0)
     if np.linalg.norm(mean) > 0.3:
         return mean / np.linalg.norm(mean)
-    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
-    return vt[2]
+    _, s, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    return vt[0] if s[0] * s[2] > s[1] ** 2 else vt[2]
 
 
 def parametrise_sphere(points: np.ndarray) -> Parametrisation:

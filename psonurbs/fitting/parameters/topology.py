@@ -5,9 +5,10 @@
     sphere    closed in u, open in v, the first and last rows collapsed to the poles
     torus     closed in both directions
 
-``auto`` tries every topology whose parametrisation the cloud supports (a closed
-direction needs data all the way round; a sphere needs data near both poles; a
-cylinder needs rims, not ends that close to a point) and keeps the one whose
+``auto`` tries every topology whose parametrisation the cloud supports (an open patch
+needs data with an edge; a closed direction needs data all the way round; a sphere
+needs data near both poles; a cylinder needs rims, not ends that close to a point, and
+a tube or a ring no data on its axis) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
 leave-one-out error. Every candidate's score or reason for rejection is reported.
 The open candidate's first parameters follow ``parametrisation`` (plane or intrinsic,
@@ -19,7 +20,9 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from psonurbs.fitting.finish.footprint import median_spacing
 from psonurbs.fitting.finish.self_checks import check_fit
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
@@ -40,6 +43,12 @@ LAYOUTS = {  # closed (u, v), poles
 MAX_GAP = 0.25  # widest empty arc (in turns) that a closed direction may have
 POLE_REACH = 0.15  # a sphere's data must come this close (in v) to each pole
 RIM_RATIO = 0.3  # a cylinder's ends must keep this share of its middle radius
+ON_AXIS_SPACINGS = 2.0  # data this close (in point spacings) to a tube's axis close it there ...
+ON_AXIS_POINTS = 3  # ... when at least this many points lie there (one stray point does not)
+EDGE_NEIGHBOURS = 24  # a point's neighbourhood when judging whether it lies on the data's edge
+EDGE_OFFSET = 0.35  # ... on it when its neighbours' centroid lies this share of their reach to one side
+EDGE_SAMPLE = 2000  # points judged (a random thinning of more): an open sheet's share stays above ~5%
+CLOSED_SHARE = 0.01  # data with fewer edge points than this share have no edge: an open patch cannot cover them
 SUSPECT = "suspect: "  # a candidate rejected by the self-checks: its reason in ``topology_scores``
 
 PARAMETRISATIONS = {"open": parametrise_open, "cylinder": parametrise_cylinder,
@@ -57,9 +66,47 @@ def layout_for(topology: str, net_size, degrees) -> NetLayout:
     return NetLayout(tuple(net_size), tuple(degrees), closed, poles)
 
 
-def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
-    """Why the cloud cannot carry this topology's parametrisation (None if it can)."""
+def on_axis(points: np.ndarray, axis: np.ndarray) -> bool:
+    """Whether the data (N, 3) reach the line along ``axis`` through their centroid:
+    ``ON_AXIS_POINTS`` of them within ``ON_AXIS_SPACINGS`` median spacings of it. A tube
+    or a ring has a hole there; a closed end (a capsule's, a bottle's) does not."""
+    radial = points - points.mean(axis=0)
+    radial = np.linalg.norm(radial - np.outer(radial @ axis, axis), axis=1)
+    return int(np.sum(radial < ON_AXIS_SPACINGS * median_spacing(points))) >= ON_AXIS_POINTS
+
+
+def edge_share(points: np.ndarray) -> float:
+    """The share of points (N, 3) on the data's edge: those whose ``EDGE_NEIGHBOURS``
+    nearest neighbours' centroid, in their tangent plane, lies more than ``EDGE_OFFSET``
+    of the neighbourhood's radius r to one side. Inside a uniform sampling the offset is
+    about r / sqrt(2 k) (0.14 r); at a straight edge 4 r / (3 pi) (0.42 r). A closed
+    surface has no edge: the share is a few in a thousand at most, while an open sheet
+    of n points keeps about 3.5 / sqrt(n) of them on its edge or more (a disc; a square
+    4 / sqrt(n)), about 0.7 of which the offset finds: 5% of ``EDGE_SAMPLE``."""
+    if len(points) > EDGE_SAMPLE:  # a uniform thinning: the share is one of EDGE_SAMPLE points
+        points = points[np.random.default_rng(0).choice(len(points), EDGE_SAMPLE, replace=False)]
+    k = min(EDGE_NEIGHBOURS, len(points) - 1)
+    if k < 3:
+        return 1.0
+    reach, nearest = cKDTree(points).query(points, k=k + 1)
+    offsets = points[nearest[:, 1:]] - points[:, None, :]  # (N, k, 3)
+    centred = offsets - offsets.mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    normal = vectors[:, :, 0]  # the least spread: the local normal
+    shift = offsets.mean(axis=1)
+    shift -= np.sum(shift * normal, axis=1, keepdims=True) * normal
+    return float(np.mean(np.linalg.norm(shift, axis=1) > EDGE_OFFSET * np.maximum(reach[:, -1], 1e-300)))
+
+
+def unsupported(par: Parametrisation | None, points: np.ndarray, topology: str) -> str | None:
+    """Why the cloud cannot carry this topology's parametrisation (None if it can; an
+    open patch's is judged on the points alone, ``par`` unused)."""
+    if topology == "open":
+        share = edge_share(points)
+        return None if share >= CLOSED_SHARE else f"the data have no edge ({share:.1%} of points on one): they close"
     info = par.info
+    if topology in ("cylinder", "torus") and on_axis(points, np.asarray(info["axis"])):
+        return "the data reach its axis (an end closes there, no hole through it)"
     gaps = info.get("angular_gaps") or ([info["angular_gap"]] if "angular_gap" in info else [])
     for name, gap in zip(("around the axis", "around the tube"), gaps):
         if gap > MAX_GAP:
@@ -126,15 +173,20 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
     A candidate whose classical surface fails a self-check (:mod:`psonurbs.fitting.finish.self_checks`)
     is rejected: an open patch laid over a tube caps its end and folds there, a torus
     forced onto a curled sheet flaps far outside it, both while passing near every
-    point. If every candidate fails, the least error is kept all the same.
+    point. If every candidate fails, the least error is kept all the same; if none is
+    supported, the open patch.
     """
     scores, candidates, suspect = {}, {}, {}
     for topology in LAYOUTS:
         if topology == "sphere" and config.net_size[1] < 3:
             scores[topology] = {"rejected": "net_size along v is below 3"}
             continue
-        par = parametrise_for(points, sample, topology, config)
-        reason = None if topology == "open" else unsupported(par, points, topology)
+        if topology == "open":  # judged on the data alone, before the costliest parametrisation
+            reason = unsupported(None, points, topology)
+            par = None if reason else parametrise_for(points, sample, topology, config)
+        else:
+            par = parametrise_for(points, sample, topology, config)
+            reason = unsupported(par, points, topology)
         if reason is not None:
             scores[topology] = {"rejected": reason}
             continue
@@ -149,6 +201,8 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
         if warnings:
             scores[topology]["rejected"] = SUSPECT + "; ".join(warnings)
     pool = candidates or suspect
+    if not pool:  # no topology carries the data: the open patch, the one without conditions on them
+        return "open", parametrise_for(points, sample, "open", config), scores
     best = min(pool, key=lambda t: (pool[t][0], list(LAYOUTS).index(t)))
     return best, pool[best][1], scores
 
@@ -160,6 +214,8 @@ def topology_note(chosen: str, scores: dict) -> str:
     def entry(name: str, score: dict) -> str:
         if "rejected" not in score:
             return f"{name} {score['classical_error_relative']:.2e}"
+        if name == chosen and "classical_error_relative" not in score:
+            return f"{name} kept: no topology carries the data (its own: {score['rejected']})"
         if name == chosen:
             found = score["rejected"].removeprefix(SUSPECT)
             return (f"{name} {score['classical_error_relative']:.2e}, kept as the least error: "
