@@ -4,6 +4,7 @@ read back by OpenCASCADE.
 
     python benchmarks/objects.py --out DIR [--only can shaft] [--seed N] [--scorer SCORE_PY]
     python benchmarks/objects.py --out DIR --clouds scan.ply other.ply --tolerance-rel 4e-3
+    python benchmarks/objects.py --out DIR --only can --points 50000   # a denser scan
     python benchmarks/objects.py --docs          # every object, written to docs/objects.md
 
 Each object is a list of true faces, maps (u, v) in [0, 1]^2 -> xyz, sampled
@@ -32,7 +33,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -255,11 +256,12 @@ def main(argv=None) -> int:
     ap.add_argument("--scorer", type=Path, help="another score.py to score the faces with")
     ap.add_argument("--clouds", nargs="+", type=Path, default=[], help="other clouds (no truth)")
     ap.add_argument("--tolerance-rel", default="2e-3", help="the clouds' tolerance (default 2e-3)")
+    ap.add_argument("--points", type=int, help="sample every object with this many points (default: its own)")
     ap.add_argument("--swarm", nargs=2, type=int, metavar=("PARTICLES", "ITERATIONS"),
                     help="a smaller swarm (default: the config's, 40 x 300)")
     args = ap.parse_args(argv)
     if args.docs:
-        args.only, args.clouds, args.swarm = None, [], None
+        args.only, args.clouds, args.swarm, args.points = None, [], None, None
     if args.out is None:
         import tempfile
 
@@ -269,7 +271,7 @@ def main(argv=None) -> int:
     swarm = ["--particles", str(args.swarm[0]), "--iterations", str(args.swarm[1])] if args.swarm else []
     rows = []
     for name in ([] if args.clouds and not args.only else args.only or list(OBJECTS)):
-        obj = OBJECTS[name]
+        obj = OBJECTS[name] if args.points is None else replace(OBJECTS[name], points=args.points)
         points, vertices, triangles = sample(obj, args.seed)
         cloud, config, truth = cases / f"{name}.ply", cases / f"{name}.yaml", cases / f"{name}.gt.npz"
         cloud.write_bytes(ply(points))
