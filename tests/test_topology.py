@@ -251,7 +251,7 @@ def test_parametrise_sphere_recovers_centre_and_radius():
     assert lo < 0.1 and hi > 0.9
 
 
-@pytest.mark.parametrize("stretch, long_axis", [(1.0, None), (2.5, True), (0.4, False)])
+@pytest.mark.parametrize("stretch, long_axis", [(1.0, None), (1.1, None), (2.5, True), (0.4, False)])
 def test_a_closed_clouds_poles_lie_on_its_axis_of_symmetry(stretch, long_axis):
     """A prolate cloud (capsule, egg) has its poles at its ends, an oblate one (a lentil)
     at its flat sides: the PCA axis whose spread stands apart from the other two."""

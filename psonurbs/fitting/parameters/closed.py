@@ -46,6 +46,7 @@ def turn_fraction(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 STRAY_SHARE = 0.005  # share of a cloud that may be strays when its extent is judged (gaps, poles)
+PROLATE = 1.25  # a cloud this much longer than wide has its poles at its ends
 
 
 def largest_gap(turns: np.ndarray, strays: float = STRAY_SHARE) -> tuple[float, float]:
@@ -87,15 +88,16 @@ def parametrise_cylinder(points: np.ndarray) -> Parametrisation:
 
 def sphere_axis(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Pole axis: along the mean direction for a cap, else the cloud's axis of symmetry:
-    the PCA axis whose spread s_k stands furthest from the other two (the longest of a
-    prolate cloud, s_0 / s_1 > s_1 / s_2, like a capsule or an egg; else the thinnest)."""
+    the longest PCA axis of a clearly prolate cloud (spreads s_0 >= s_1 >= s_2 with
+    s_0 / s_1 above both ``PROLATE`` and s_1 / s_2: a capsule, an egg, a bottle), else the
+    thinnest (a lentil's; a near-round ball's, where no axis stands out)."""
     d = points - centre
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
     mean = d.mean(axis=0)
     if np.linalg.norm(mean) > 0.3:
         return mean / np.linalg.norm(mean)
     _, s, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
-    return vt[0] if s[0] * s[2] > s[1] ** 2 else vt[2]
+    return vt[0] if s[0] > s[1] * max(PROLATE, s[1] / max(s[2], 1e-300)) else vt[2]
 
 
 def parametrise_sphere(points: np.ndarray) -> Parametrisation:
