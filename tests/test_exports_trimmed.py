@@ -49,6 +49,20 @@ def check_occ_shape(shape, surface, loops: int):
     return faces[0]
 
 
+def step_read_back(tmp_path, surface, name: str):
+    """The untrimmed surface's STEP file as OpenCASCADE reads it back (its one shape)."""
+    from OCP.STEPControl import STEPControl_Reader
+
+    from psonurbs.formats.step import render_step
+
+    path = tmp_path / f"{name}.step"
+    path.write_bytes(render_step(surface, None, name))
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(path))
+    reader.TransferRoots()
+    return reader.OneShape()
+
+
 def face_area(face) -> float:
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
@@ -92,17 +106,8 @@ def test_step_read_back_by_opencascade(tmp_path, trimmed):
 
 def test_step_of_a_closed_surface(tmp_path):
     pytest.importorskip("OCP")
-    from OCP.STEPControl import STEPControl_Reader
-
-    from psonurbs.formats.step import render_step
-
     s = closed_u_surface()
-    path = tmp_path / "c.step"
-    path.write_bytes(render_step(s, None, "tube"))
-    reader = STEPControl_Reader()
-    reader.ReadFile(str(path))
-    reader.TransferRoots()
-    faces, _ = occ_faces(reader.OneShape())
+    faces, _ = occ_faces(step_read_back(tmp_path, s, "tube"))
     assert len(faces) == 1
     from OCP.BRep import BRep_Tool
     geom = BRep_Tool.Surface_s(faces[0])
@@ -121,11 +126,8 @@ def test_step_of_a_surface_closed_on_itself_is_its_solid(tmp_path, closes, axes)
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
-    from OCP.STEPControl import STEPControl_Reader
     from OCP.TopAbs import TopAbs_SOLID
     from OCP.TopExp import TopExp_Explorer
-
-    from psonurbs.formats.step import render_step
 
     if closes:
         from psonurbs.config import config_from_dict
@@ -140,12 +142,7 @@ def test_step_of_a_surface_closed_on_itself_is_its_solid(tmp_path, closes, axes)
         s = classical_surface(layout, parametrise_sphere(pts), pts, config_from_dict({}))
     else:
         s = closed_u_surface()
-    path = tmp_path / "c.step"
-    path.write_bytes(render_step(s, None, "closed"))
-    reader = STEPControl_Reader()
-    reader.ReadFile(str(path))
-    reader.TransferRoots()
-    shape = reader.OneShape()
+    shape = step_read_back(tmp_path, s, "closed")
     solids = TopExp_Explorer(shape, TopAbs_SOLID)
     assert solids.More() == closes and len(occ_faces(shape)[0]) == 1
     assert BRepCheck_Analyzer(shape).IsValid()
