@@ -324,6 +324,8 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
           also="`tolerance` or `tolerance_rel`, not both", option="--tolerance-rel"),
     Field("tolerance_measure", CHOICE, "p99", "what the tolerance bounds: the point distances' 99th "
           "percentile, max or rms", choices=TOLERANCE_MEASURES),
+    Field("align_edges", SWITCH, True, "stretch the data onto the domain's edges (the surface ends where "
+          "they do); false for faces the join extends"),
     Field("patches", AUTO_INTEGER, 1, "faces: 1, one surface; auto, split at creases, a face per region, "
           "cut and sewn into a shell (a solid if closed); N, the N largest regions", least=1, most=MAX_PATCHES,
           why="faces of one object", option="--patches"),
@@ -406,6 +408,7 @@ class FitConfig:
     tolerance: float | None = default("tolerance")
     tolerance_rel: float | None = default("tolerance_rel")
     tolerance_measure: str = default("tolerance_measure")
+    align_edges: bool = default("align_edges")
     patches: int | str = default("patches")
 
     def __post_init__(self) -> None:
@@ -449,7 +452,7 @@ class FitConfig:
             raise _fail("weight_bounds", "[lo, hi] with 0 < lo <= 1 <= hi", [lo, hi])
         if lo < MIN_WEIGHT_BOUND:
             raise ConfigError(f"config key 'weight_bounds': {_show(lo)} is too small: at least {MIN_WEIGHT_BOUND:g}")
-        _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim", "patches")
+        _normalise(self, "", "min_knot_gap", "cross_validation", "refine", "robust", "trim", "align_edges", "patches")
 
     def _check_tolerance(self) -> None:
         """At most one of tolerance and tolerance_rel, each a positive finite number."""
@@ -479,7 +482,8 @@ class FitConfig:
         """Plain JSON-able dict, same shape as the YAML (lists, nested swarm)."""
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):
-            if f.name in TOLERANCE_KEYS and not self.has_tolerance or f.name == "patches" and self.patches == 1:
+            if (f.name in TOLERANCE_KEYS and not self.has_tolerance or f.name == "patches" and self.patches == 1
+                    or f.name == "align_edges" and self.align_edges):
                 continue  # a fit without a tolerance (of one face) writes the config it always wrote
             value = getattr(self, f.name)
             if isinstance(value, SwarmConfig):

@@ -63,6 +63,50 @@ def test_a_closed_direction_goes_to_opencascade_as_a_periodic_b_spline():
         assert np.allclose([p.X(), p.Y(), p.Z()], s.evaluate(np.array([u]), np.array([v]))[0], atol=1e-12)
 
 
+def box(n: int, sides=(1.0, 0.7, 0.4), seed: int = 0, noise: float = 5e-4) -> np.ndarray:
+    """A closed box: six rectangles, three meeting at each corner, sampled area-uniformly (N, 3)."""
+    rng = np.random.default_rng(seed)
+    a = np.asarray(sides, float)
+    faces = [(k, side) for k in range(3) for side in (0.0, a[k])]  # the face x_k = side
+    areas = np.array([np.prod(np.delete(a, k)) for k, _ in faces])
+    parts = []
+    for (k, side), count in zip(faces, rng.multinomial(n, areas / areas.sum())):
+        q = rng.random((count, 3)) * a
+        q[:, k] = side
+        parts.append(q)
+    p = np.concatenate(parts)
+    return p + noise * np.linalg.norm(a) * rng.standard_normal(p.shape)
+
+
+def test_a_box_closes_at_its_corners_where_three_faces_meet():
+    """Each face is fitted with its edges free (``align_edges: false``: the parameters'
+    map stays the plane's, affine), so its extension past the data stays flat and
+    reaches past every corner; stretched onto the domain's edges, a flat face's map
+    bends near its corners, its extension curls back short of them and the shell stays
+    open there."""
+    pytest.importorskip("OCP")
+    from psonurbs.config import config_from_dict
+    from psonurbs.objects.whole import fit_object
+
+    config = config_from_dict({"orders": [4, 4], "patches": "auto", "tolerance_rel": 2e-3,
+                               "swarm": {"particles": 1, "iterations": 1}})
+    done = fit_object(box(5000), config)
+    assert len(done.faces) == 6 and all(f.topology == "open" for f in done.faces)
+    assert done.shell["closed"] and done.shell["valid"] and done.shell["free_edges"] == 0
+    assert done.shell["volume"] == pytest.approx(1.0 * 0.7 * 0.4, rel=0.005)
+    assert done.metrics["tolerance"]["met"]
+
+
+def test_free_edges_leave_no_direction_bounded():
+    from psonurbs.config import config_from_dict
+    from psonurbs.fitting.parameters.topology import layout_for
+
+    assert layout_for("open", (5, 5), (3, 3)).bounded == (True, True)
+    assert layout_for("open", (5, 5), (3, 3), free_edges=True).bounded == (False, False)
+    assert config_from_dict({}).align_edges and "align_edges" not in config_from_dict({}).to_dict()
+    assert config_from_dict({"align_edges": False}).to_dict()["align_edges"] is False
+
+
 @pytest.fixture(scope="module")
 def fitted_can(tmp_path_factory):
     """A can fitted with ``--patches auto`` (one particle: the faces' classical fits)."""

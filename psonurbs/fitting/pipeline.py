@@ -182,7 +182,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             topology = config.topology
             par = parametrise_for(points_t, sample_t, topology, config)
         par = Parametrisation(parameters_for_all(fitted.points, trusted, par.uv), par.info)
-        layout = layout_for(topology, config.net_size, config.degrees)
+        layout = layout_for(topology, config.net_size, config.degrees, not config.align_edges)
         progress = None if on_iteration is None else (lambda i, b, m: on_iteration(i, b * diag, m * diag))
         surface, swarm, info = run_full(fitted, layout, par, fitted_sample, config, rng, progress) \
             if config.strategy == "full" else \

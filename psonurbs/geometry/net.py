@@ -37,10 +37,15 @@ class NetLayout:
     degrees: tuple[int, int]
     closed: tuple[bool, bool] = (False, False)
     poles: bool = False  # collapse the first and last row along v to single points
+    free_edges: bool = False  # the edges are not held to the data's: other faces will cut the surface
 
     @property
     def bounded(self) -> tuple[bool, bool]:
-        """Directions whose two ends are edges of the surface: open and not collapsed to poles."""
+        """Directions whose two ends are edges of the surface that end where the data do:
+        open and not collapsed to poles, unless the edges are free (an object's face,
+        which its neighbours cut)."""
+        if self.free_edges:
+            return (False, False)
         return (not self.closed[0], not (self.closed[1] or self.poles))
 
     @property

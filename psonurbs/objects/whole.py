@@ -67,14 +67,15 @@ def object_curve(curves: list[np.ndarray], points: list[int]) -> np.ndarray:
 
 
 def face_config(config, diagonal: float, joined: bool):
-    """A region's config: topology auto, one patch, the object's tolerance in cloud units,
-    untrimmed when the faces are joined (the join trims them)."""
+    """A region's config: topology auto, one patch, the object's tolerance in cloud units;
+    when the faces are joined, untrimmed (the join trims them) and with free edges (the
+    first parameters' smooth map, which extends smoothly past the data)."""
     d = config.to_dict()
     d.update(topology="auto", patches=1)
     if config.tolerance_rel is not None:
         d.update(tolerance=config.tolerance_rel * diagonal, tolerance_rel=None)
     if joined:
-        d["trim"] = False
+        d.update(trim=False, align_edges=False)
     if not config.net_size_given:
         d.pop("net_size", None)
     from psonurbs.config import config_from_dict

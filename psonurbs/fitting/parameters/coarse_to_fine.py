@@ -38,7 +38,8 @@ class Level:
 
     def layout(self, fine: NetLayout) -> NetLayout:
         p, q = fine.degrees
-        return NetLayout((len(self.inner_u) + p + 1, len(self.inner_v) + q + 1), fine.degrees)
+        return NetLayout((len(self.inner_u) + p + 1, len(self.inner_v) + q + 1), fine.degrees,
+                         free_edges=fine.free_edges)
 
     @property
     def size(self) -> tuple[int, int]:

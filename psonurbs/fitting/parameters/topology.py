@@ -61,9 +61,9 @@ def parametrise(points: np.ndarray, topology: str) -> Parametrisation:
 
 
 
-def layout_for(topology: str, net_size, degrees) -> NetLayout:
+def layout_for(topology: str, net_size, degrees, free_edges: bool = False) -> NetLayout:
     closed, poles = LAYOUTS[topology]
-    return NetLayout(tuple(net_size), tuple(degrees), closed, poles)
+    return NetLayout(tuple(net_size), tuple(degrees), closed, poles, free_edges)
 
 
 def on_axis(points: np.ndarray, axis: np.ndarray) -> bool:
@@ -150,7 +150,7 @@ def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, confi
     """First parameters of all points for a given topology (orientation settled on
     ``sample``); intrinsic ones of an open patch corrected from coarse to fine."""
     par = parametrise_open_patch(points, config.parametrisation) if topology == "open" else parametrise(points, topology)
-    layout = layout_for(topology, config.net_size, config.degrees)
+    layout = layout_for(topology, config.net_size, config.degrees, not config.align_edges)
     if oriented(Parametrisation(par.uv[sample], par.info), layout, points[sample], config).info.get("swapped"):
         par = par.swapped()
     if par.info["method"] == "intrinsic":
@@ -190,7 +190,7 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
         if reason is not None:
             scores[topology] = {"rejected": reason}
             continue
-        layout = layout_for(topology, config.net_size, config.degrees)
+        layout = layout_for(topology, config.net_size, config.degrees, not config.align_edges)
         on_sample = Parametrisation(par.uv[sample], par.info)
         error = classical_error(layout, on_sample, points[sample], config)
         scores[topology] = {"classical_error_relative": float(error)}
