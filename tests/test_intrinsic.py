@@ -188,6 +188,38 @@ def test_auto_lays_flat_what_no_plane_sees_as_a_height_field(name, cloud, why):
     assert why in par.info["choice"]["reason"]
 
 
+def flat_l(n: int = 1500, seed: int = 3, noise: float = 5e-4, tilt=(20.0, -35.0, 10.0)) -> np.ndarray:
+    """A flat L (a 1 x 0.2 foot and a 0.25 x 0.6 upright), turned in space: its outline
+    fills 44% of its bounding rectangle."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    xy = rng.random((3 * n, 2)) * [1.0, 0.8]
+    xy = xy[(xy[:, 1] <= 0.2) | (xy[:, 0] <= 0.25)][:n]
+    pts = np.column_stack([xy, noise * rng.standard_normal(len(xy))])
+    return Rotation.from_euler("xyz", tilt, degrees=True).apply(pts)
+
+
+def test_a_flat_l_is_projected_on_its_own_plane():
+    """Flat: every normal within 15 degrees of the PCA normal. Neither a view tilted to
+    square its outline nor an embedding of its graph (which bends round the inner
+    corner and fills a turned rectangle better for it) is taken: the projection on its
+    own plane is already its flattening, and an affine one."""
+    from scipy.spatial.transform import Rotation
+
+    pts = flat_l()
+    normal = Rotation.from_euler("xyz", (20.0, -35.0, 10.0), degrees=True).apply([0.0, 0.0, 1.0])
+    for par in (parametrise_open(pts), parametrise_open_patch(pts, "auto")):
+        assert par.info["method"] == "plane"
+        assert abs(np.dot(par.info["normal"], normal)) > np.cos(np.radians(1.0))
+    assert "flat" in parametrise_open_patch(pts, "auto").info["choice"]["reason"]
+    # the map is affine: the parameters are an affine image of the points
+    par = parametrise_open(pts)
+    design = np.column_stack([pts, np.ones(len(pts))])
+    residual = par.uv - design @ np.linalg.lstsq(design, par.uv, rcond=None)[0]
+    assert np.abs(residual).max() < 1e-9
+
+
 def test_auto_computes_both_candidates_side_by_side_with_the_same_result(monkeypatch):
     cloud = cylinder_section(noise=1e-3)[0]
     monkeypatch.setenv("PSONURBS_THREADS", "1")

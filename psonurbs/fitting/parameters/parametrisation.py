@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+FLAT = float(np.cos(np.radians(15.0)))  # |n . d| above this nearly everywhere: flat over the plane, its projection near-isometric
 FILL_MARGIN = 0.03  # of the unit square's cells: above the jitter of a sampled boundary (8 of 256 cells)
 
 

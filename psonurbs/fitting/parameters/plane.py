@@ -13,7 +13,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from psonurbs.fitting.prepare.organise import local_normals
 
-from .parametrisation import Parametrisation, cell_counts, min_area_rectangle, plane_basis, unit_square
+from .parametrisation import FLAT, Parametrisation, cell_counts, min_area_rectangle, plane_basis, unit_square
 
 
 def project_on_plane(points: np.ndarray, normal: np.ndarray) -> Parametrisation:
@@ -88,16 +88,22 @@ def parametrise_open(points: np.ndarray, directions: int = 200, max_points: int 
     The plane normal here maximises the 5th percentile of |n . d| over the local
     normals (:func:`facing`): the direction along which the surface is most surely a
     height field. Candidates: the PCA normal, the dominant normal direction and a
-    lattice over the hemisphere, then finer searches around the winner.
+    lattice over the hemisphere, then finer searches around the winner. A flat surface
+    (95% of its normals within 15 degrees of the PCA normal, :data:`FLAT`) is projected on
+    its own plane: a view tilted up to the search's allowance would square a
+    non-rectangular outline (an L seen 30 degrees off) at the cost of an oblique map.
     """
     sample = points[:: max(1, len(points) // max_points)]
     _, _, vt = np.linalg.svd(sample - sample.mean(axis=0), full_matrices=False)
     normals = local_normals(sample)
     _, vecs = np.linalg.eigh(normals.T @ normals)
     cells = int(np.clip(np.sqrt(len(sample) / 8.0), 2, 16))
-    normal = best_plane(sample, normals, np.vstack([vt[2], vecs[:, 2], hemisphere_directions(directions)]), cells)
-    for radius in (0.1, 0.02, 0.004):
-        normal = best_plane(sample, normals, np.vstack([normal, directions_around(normal, radius)]), cells)
+    if facing(normals, vt[2]) >= FLAT:  # flat: its own plane, not a tilted view whose outline looks squarer
+        normal = vt[2]
+    else:
+        normal = best_plane(sample, normals, np.vstack([vt[2], vecs[:, 2], hemisphere_directions(directions)]), cells)
+        for radius in (0.1, 0.02, 0.004):
+            normal = best_plane(sample, normals, np.vstack([normal, directions_around(normal, radius)]), cells)
     best = project_on_plane(points, normal)
     best.info["footprint_fill"], _ = footprint_quality(sample, normal, cells)
     best.info["facing"] = facing(normals, normal)
