@@ -324,7 +324,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
         topology = result.topology  # auto: chosen once, at the first net
         scores = result.info.get("topology_scores", scores)
         uv, dist = _held_distances(result.surface, judged)
-        covered = inside(uv, layout_for(topology, size, config.degrees, not config.align_edges).bounded)
+        covered = inside(uv, layout_for(topology, size, config.degrees).bounded)
         uv, dist = uv[covered], dist[covered]
         return Step(size, measure(dist, name), time.perf_counter() - start,
                     span_concentration(uv, np.maximum(dist - value, 0.0), result.surface), knots)
