@@ -122,7 +122,8 @@ def bracket(n: int, width: float = 0.6, seed: int = 1, noise: float = 5e-4) -> n
 def test_an_l_bracket_closes_across_its_concave_edge():
     """Its L-shaped ends are flat: projected on their own planes (not an oblique view,
     not a bent embedding), they extend flat past the concave corner; a held-out point
-    beyond a face's free edge is no error of its fit (the join extends it)."""
+    beyond a face's free edge is no error of its fit (the join extends it); the cuts
+    that run on past the inner corner stay inside a face and bound nothing."""
     pytest.importorskip("OCP")
     from psonurbs.config import config_from_dict
     from psonurbs.objects.whole import fit_object
@@ -131,6 +132,8 @@ def test_an_l_bracket_closes_across_its_concave_edge():
                                "swarm": {"particles": 1, "iterations": 1}})
     done = fit_object(bracket(8000), config)
     assert len(done.faces) == 8
+    # each face is one loop: the cuts running on past the inner corner (internal edges) are no holes
+    assert all(len(f.trim.loops) == 1 for f in done.faces)
     assert done.shell["closed"] and done.shell["valid"]
     assert done.shell["volume"] == pytest.approx((0.3 + 0.3 * 0.5) * 0.6, rel=0.005)
     assert done.metrics["tolerance"]["met"]

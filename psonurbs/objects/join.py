@@ -145,11 +145,12 @@ def held_pieces(distances: np.ndarray, areas: np.ndarray, points: int) -> tuple[
 def _loops(face, surface: NurbsSurface) -> Trim | None:
     """The face's wires as loops in (u, v): each edge's curve on the surface sampled
     along the wire's order, the outer loop counter-clockwise and holes clockwise; a
-    closed direction's seam pushed ``EDGE_OUTSET`` past the domain's edge. None when
-    no outer loop is left (a degenerate piece)."""
+    closed direction's seam pushed ``EDGE_OUTSET`` past the domain's edge. An internal
+    edge (a section that ends inside the piece: two faces' cut running on past a corner)
+    bounds nothing and is no loop. None when no outer loop is left (a degenerate piece)."""
     from OCP.BRepAdaptor import BRepAdaptor_Curve2d
     from OCP.BRepTools import BRepTools
-    from OCP.TopAbs import TopAbs_REVERSED, TopAbs_WIRE
+    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED, TopAbs_WIRE
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -160,6 +161,8 @@ def _loops(face, surface: NurbsSurface) -> Trim | None:
         wire = TopoDS.Wire(explorer.Current())
         polygon = []
         for edge in _edges_in_order(wire, face):
+            if edge.Orientation() not in (TopAbs_FORWARD, TopAbs_REVERSED):  # internal: inside the piece
+                continue
             curve = BRepAdaptor_Curve2d(edge, face)
             t = np.linspace(curve.FirstParameter(), curve.LastParameter(), EDGE_SAMPLES)
             if edge.Orientation() == TopAbs_REVERSED:
