@@ -95,18 +95,6 @@ def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
     return surface
 
 
-def _faces_of(shape) -> list:
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    out, explorer = [], TopExp_Explorer(shape, TopAbs_FACE)
-    while explorer.More():
-        out.append(TopoDS.Face(explorer.Current()))
-        explorer.Next()
-    return out
-
-
 def _count(shape, kind) -> int:
     """How many sub-shapes of a kind the shape holds (a seam edge counted twice)."""
     from OCP.TopExp import TopExp_Explorer
