@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from psonurbs.fitting.prepare.organise import normals_and_variation
+
 NEIGHBOURS = 16
 ANGLE = np.radians(12.0)
 ROUGH = 4.0
@@ -46,13 +48,6 @@ class Regions:
 
     def members(self, region: int) -> np.ndarray:
         return np.flatnonzero(self.labels == region)
-
-
-def normals_and_variation(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (N, 3) and surface variation (N,) of each point's neighbourhood (N, k)."""
-    q = points[neighbours] - points[neighbours].mean(axis=1, keepdims=True)
-    eigenvalues, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
-    return vectors[:, :, 0], eigenvalues[:, 0] / np.maximum(eigenvalues.sum(axis=1), 1e-300)
 
 
 def grown(normals: np.ndarray, variation: np.ndarray, neighbours: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 from psonurbs.fitting.finish.footprint import median_spacing
 from psonurbs.fitting.finish.self_checks import check_fit
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.prepare.organise import normals_and_variation
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
 
@@ -89,11 +90,8 @@ def edge_share(points: np.ndarray) -> float:
     if k < 3:
         return 1.0
     reach, nearest = cKDTree(points).query(points, k=k + 1)
-    offsets = points[nearest[:, 1:]] - points[:, None, :]  # (N, k, 3)
-    centred = offsets - offsets.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    normal = vectors[:, :, 0]  # the least spread: the local normal
-    shift = offsets.mean(axis=1)
+    normal = normals_and_variation(points, nearest[:, 1:])[0]
+    shift = points[nearest[:, 1:]].mean(axis=1) - points  # (N, 3): the neighbours' centroid, from the point
     shift -= np.sum(shift * normal, axis=1, keepdims=True) * normal
     return float(np.mean(np.linalg.norm(shift, axis=1) > EDGE_OFFSET * np.maximum(reach[:, -1], 1e-300)))
 
