@@ -96,12 +96,15 @@ def edge_share(points: np.ndarray) -> float:
     return float(np.mean(np.linalg.norm(shift, axis=1) > EDGE_OFFSET * np.maximum(reach[:, -1], 1e-300)))
 
 
-def unsupported(par: Parametrisation | None, points: np.ndarray, topology: str) -> str | None:
-    """Why the cloud cannot carry this topology's parametrisation (None if it can; an
-    open patch's is judged on the points alone, ``par`` unused)."""
-    if topology == "open":
-        share = edge_share(points)
-        return None if share >= CLOSED_SHARE else f"the data have no edge ({share:.1%} of points on one): they close"
+def without_edge(points: np.ndarray) -> str | None:
+    """Why an open patch cannot cover the data (N, 3): they have no edge, they close
+    (None if they have one)."""
+    share = edge_share(points)
+    return None if share >= CLOSED_SHARE else f"the data have no edge ({share:.1%} of points on one): they close"
+
+
+def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
+    """Why the cloud cannot carry this closed topology's parametrisation (None if it can)."""
     info = par.info
     if topology in ("cylinder", "torus") and on_axis(points, np.asarray(info["axis"])):
         return "the data reach its axis (an end closes there, no hole through it)"
@@ -180,7 +183,7 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
             scores[topology] = {"rejected": "net_size along v is below 3"}
             continue
         if topology == "open":  # judged on the data alone, before the costliest parametrisation
-            reason = unsupported(None, points, topology)
+            reason = without_edge(points)
             par = None if reason else parametrise_for(points, sample, topology, config)
         else:
             par = parametrise_for(points, sample, topology, config)
