@@ -29,8 +29,8 @@ shows that the projection misrepresents the surface:
   by construction, and would take a height field over a trapezoid or an annular sector
   from the plane (a 220-degree cone section over its axis plane: twice the plane's rmse).
 
-A surface flat over the plane (every normal but ``EDGE_ON_SHARE`` of the area within 15
-degrees of the plane's) is the plane's, whatever the fills: its projection shortens no
+A surface flat over the plane (95% of its normals within 15 degrees of the plane's,
+:func:`psonurbs.fitting.parameters.plane.facing`) is the plane's, whatever the fills: its projection shortens no
 distance by more than 3.4%, so it already is the flattening, while an embedding of its
 graph bends where the footprint is not convex (geodesics round an L's inner corner) and
 may fill a turned rectangle better for that alone (a flat L: 52% against 58%, and a
@@ -79,10 +79,10 @@ class OpenChoice:
                 "fill_plane": self.fill_plane, "fill_intrinsic": self.fill_intrinsic, "reason": self.reason}
 
 
-def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray, below: float = EDGE_ON) -> float:
-    """Share of the area (``areas`` per point) whose normal n has |n . direction| below
-    ``below``: by default within 10 degrees of perpendicular to ``direction``."""
-    return float(np.sum(areas[np.abs(normals @ direction) < below]) / np.sum(areas))
+def edge_on_share(normals: np.ndarray, areas: np.ndarray, direction: np.ndarray) -> float:
+    """Share of the area (``areas`` per point) whose normal is within 10 degrees of
+    perpendicular to ``direction``."""
+    return float(np.sum(areas[np.abs(normals @ direction) < EDGE_ON]) / np.sum(areas))
 
 
 def stacked_share(points: np.ndarray, reach: np.ndarray, areas: np.ndarray, direction: np.ndarray,
@@ -106,9 +106,9 @@ def stacked_share(points: np.ndarray, reach: np.ndarray, areas: np.ndarray, dire
 
 
 def choose(edge_on: float, fill_plane: float, fill_intrinsic: float, stacked: float = 0.0,
-           tilted: float = 1.0) -> OpenChoice:
-    """``tilted``: the share of the area whose normal leans over 15 degrees from the
-    plane's (:data:`FLAT`); under ``EDGE_ON_SHARE`` the surface is flat over the plane."""
+           flat: bool = False) -> OpenChoice:
+    """``flat``: the surface faces the plane within 15 degrees nearly everywhere (the
+    plane's ``facing``, at least :data:`FLAT`)."""
     def chosen(method: str, reason: str) -> OpenChoice:
         return OpenChoice(edge_on, fill_plane, fill_intrinsic, method, reason, stacked)
 
@@ -117,7 +117,7 @@ def choose(edge_on: float, fill_plane: float, fill_intrinsic: float, stacked: fl
                       "vertical)")
     if stacked > EDGE_ON_SHARE:
         return chosen("intrinsic", f"the plane lays {stacked:.0%} of the surface over another part of it")
-    if tilted <= EDGE_ON_SHARE:
+    if flat:
         return chosen("plane", "flat over the plane: the projection is its own flattening")
     if fill_intrinsic >= fill_plane + FILL_MARGIN:
         return chosen("intrinsic", f"the projection fills {fill_plane:.0%} of the parameter square, "
@@ -144,6 +144,6 @@ def parametrise_open_patch(points: np.ndarray, method: str = "auto") -> Parametr
     choice = choose(edge_on_share(graph.normals[part], areas[part], normal),
                     fill(plane.uv[sample], cells), fill(intrinsic.rectangle[sample], cells),
                     stacked_share(graph.points[part], graph.lengths[part, -1], areas[part], normal),
-                    edge_on_share(graph.normals[part], areas[part], normal, FLAT))
+                    plane.info["facing"] >= FLAT)
     chosen = intrinsic.par if choice.method == "intrinsic" else plane
     return Parametrisation(chosen.uv, {**chosen.info, "choice": choice.to_dict()})
