@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from psonurbs.objects.regions import segment
+from psonurbs.objects.regions import CREASE, folded_variation, segment
 
 
 def can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, noise: float = 5e-4) -> np.ndarray:
@@ -36,6 +36,52 @@ def test_a_can_splits_at_its_two_creases_and_a_sphere_or_a_rough_sheet_stays_one
     xy = rng.random((4000, 2))
     rough = np.column_stack([xy, 0.1 * np.sin(3 * xy[:, 0]) + 0.004 * rng.standard_normal(4000)])
     assert segment(rough).count == 1
+
+
+def rounded_can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, fillet: float = 0.1,
+                noise: float = 5e-4) -> np.ndarray:
+    """A can whose rims are rounded: a wall, two quarter tori of radius ``fillet`` and two
+    discs, every join tangent; sampled area-uniformly (N, 3)."""
+    rng = np.random.default_rng(seed)
+    inner, wall_height = radius - fillet, height - 2 * fillet
+    areas = np.array([2 * np.pi * radius * wall_height, np.pi * inner ** 2, np.pi * inner ** 2,
+                      2 * np.pi * fillet * (np.pi / 2 * inner + fillet), 2 * np.pi * fillet * (np.pi / 2 * inner + fillet)])
+    counts = rng.multinomial(n, areas / areas.sum())
+    t = 2 * np.pi * rng.random(counts[0])
+    parts = [np.column_stack([radius * np.cos(t), radius * np.sin(t), fillet + wall_height * rng.random(counts[0])])]
+    for count, z in zip(counts[1:3], (0.0, height)):
+        r, a = inner * np.sqrt(rng.random(count)), 2 * np.pi * rng.random(count)
+        parts.append(np.column_stack([r * np.cos(a), r * np.sin(a), np.full(count, z)]))
+    for count, (z, up) in zip(counts[3:], ((fillet, -1.0), (height - fillet, 1.0))):
+        a = np.pi / 2 * rng.random(4 * count)  # the tube's angle, drawn by its area (R + r cos a) da
+        a = a[rng.random(4 * count) * (inner + fillet) < inner + fillet * np.cos(a)][:count]
+        t = 2 * np.pi * rng.random(count)
+        rho = inner + fillet * np.cos(a)
+        parts.append(np.column_stack([rho * np.cos(t), rho * np.sin(t), z + up * fillet * np.sin(a)]))
+    p = np.concatenate(parts)
+    return p + noise * np.linalg.norm(np.ptp(p, axis=0)) * rng.standard_normal(p.shape)
+
+
+def test_the_variation_of_a_folded_disc_is_what_a_sampled_one_reads():
+    rng = np.random.default_rng(3)
+    r, a = np.sqrt(rng.random(200000)), 2 * np.pi * rng.random(200000)
+    x, y = r * np.cos(a), r * np.sin(a)
+    for degrees in (30.0, 45.0, 90.0):
+        half = np.radians(degrees) / 2
+        folded = np.column_stack([x, y * np.cos(half), np.abs(y) * np.sin(half)])
+        values = np.linalg.eigvalsh(np.cov(folded.T))
+        assert folded_variation(np.radians(degrees)) == pytest.approx(values[0] / values.sum(), rel=0.02)
+    assert folded_variation(np.radians(90.0)) == pytest.approx(0.0852, abs=2e-4)
+
+
+def test_rounded_rims_are_bends_not_creases_and_a_can_with_them_is_one_region():
+    """A fillet of radius 0.1 reads a variation about (rho / r)^2 / 32, under a 45 degree
+    crease's: the regions grow across it (the sharp can above still splits in three)."""
+    cloud = rounded_can(6000)
+    regions = segment(cloud)
+    assert regions.count == 1
+    assert np.mean(regions.labels < 0) < 0.01
+    assert folded_variation(CREASE) > 0.02
 
 
 def test_a_surface_extended_past_its_domain_is_the_same_surface_there():

@@ -5,8 +5,11 @@ sigma = l_0 / (l_0 + l_1 + l_2) come from the covariance of its ``NEIGHBOURS`` n
 neighbours (eigenvalues l_0 <= l_1 <= l_2). A region starts at the smoothest point not
 yet taken and takes every neighbour whose normal is within ``ANGLE`` of the point it is
 reached from; it grows on only through smooth points (sigma below ``ROUGH`` times the
-median), so it stops at a crease, where the neighbourhoods straddle two faces and sigma
-peaks. Points a region never reached (a crease's band) belong to none.
+median, or below what a neighbourhood straddling a crease of ``CREASE`` reads,
+:func:`folded_variation`, whichever is larger), so it stops at a crease, where the
+neighbourhoods straddle two faces and sigma peaks, and goes on round a fillet, a bend
+whose radius is more than a neighbourhood's (a can's rounded rim). Points a region never
+reached (a crease's band) belong to none.
 
 Regions smaller than ``MIN_SHARE`` of the cloud are given up (their points to none), and
 two regions that touch are merged where they meet smoothly: the mean normals of their
@@ -50,9 +53,21 @@ class Regions:
         return np.flatnonzero(self.labels == region)
 
 
+def folded_variation(turn: float) -> float:
+    """The surface variation of a uniform disc folded along a diameter, its halves
+    turned ``turn`` apart: covariance eigenvalues 1/4, cos^2(t/2) / 4 and
+    sin^2(t/2) (1/4 - 16 / (9 pi^2)) (the halves' offsets |y| sin(t/2) about their mean),
+    sigma = the least over their sum. A neighbourhood straddling a crease of that turn
+    reads about this much at the crease; one on a bend of radius r, about
+    (rho / r)^2 / 32 for a neighbourhood of radius rho."""
+    half = turn / 2.0
+    least = np.sin(half) ** 2 * (0.25 - 16.0 / (9.0 * np.pi ** 2))
+    return float(least / (0.25 + 0.25 * np.cos(half) ** 2 + least))
+
+
 def grown(normals: np.ndarray, variation: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Labels (N,) of the regions grown from the smoothest points (-1: reached by none)."""
-    smooth = variation < ROUGH * np.median(variation)
+    smooth = variation < max(ROUGH * np.median(variation), folded_variation(CREASE))
     labels = np.full(len(normals), -1)
     cos = np.cos(ANGLE)
     region = 0
