@@ -12,7 +12,8 @@ from conftest import ply_bytes, run
 from psonurbs.config import FitConfig, config_from_dict
 from psonurbs.errors import ConfigError
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.fitting.search.tolerance import growths, measure, noise_allows, smallest_net, span_concentration
+from psonurbs.fitting.search.tolerance import (NetSearch, Step, growths, measure, noise_allows, searched, smallest_net,
+                                              span_concentration)
 from psonurbs.geometry.nurbs import NurbsSurface
 
 SMALL_SWARM = {"particles": 6, "iterations": 8, "seed": 7}
@@ -220,3 +221,26 @@ def test_plot_draws_the_search_of_a_fit_to_a_tolerance(tmp_path):
     from PIL import Image
 
     assert Image.open(path).size == SIZES["tolerance"]
+
+
+def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered_as_met():
+    """Held-out error 1 / (nu nv) against a tolerance of 1 / 36; every point's error 3%
+    higher. 6 x 6 meets on the held-out points alone: the search marks it failing and
+    goes on to the smallest net that meets on all."""
+    value = 1.0 / 36.0
+    held_out = lambda size: Step(size, 1.0 / (size[0] * size[1]), 0.0, (1.0, 1.0))  # noqa: E731
+    on_all = lambda size: 1.03 / (size[0] * size[1])  # noqa: E731
+    delivered = []
+
+    def deliver(step):
+        delivered.append(step.net_size)
+        return f"fit {step.net_size}", on_all(step.net_size)
+
+    uniform = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
+    best, result, achieved, steps = searched(uniform, None, deliver, value)
+    assert delivered[0] == (6, 6)  # what the held-out points alone would deliver
+    assert achieved <= value and result == f"fit {best.net_size}"
+    assert best.net_size[0] * best.net_size[1] > 36
+    assert uniform.steps[(6, 6)].achieved == pytest.approx(on_all((6, 6)))  # marked with the all-points figure
+    plain = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
+    assert searched(plain, None, lambda step: (None, 0.0), value)[0].net_size == (6, 6)  # met on all: kept
