@@ -12,8 +12,16 @@ from conftest import ply_bytes, run
 from psonurbs.config import FitConfig, config_from_dict
 from psonurbs.errors import ConfigError
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.fitting.search.tolerance import (NetSearch, Step, growths, measure, noise_allows, searched, smallest_net,
-                                              span_concentration)
+from psonurbs.fitting.search.tolerance import (
+    NetSearch,
+    Step,
+    growths,
+    measure,
+    noise_allows,
+    searched,
+    smallest_net,
+    span_concentration,
+)
 from psonurbs.geometry.nurbs import NurbsSurface
 
 SMALL_SWARM = {"particles": 6, "iterations": 8, "seed": 7}
@@ -244,3 +252,4 @@ def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered
     assert uniform.steps[(6, 6)].achieved == pytest.approx(on_all((6, 6)))  # marked with the all-points figure
     plain = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
     assert searched(plain, None, lambda step: (None, 0.0), value)[0].net_size == (6, 6)  # met on all: kept
+

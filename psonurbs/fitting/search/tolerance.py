@@ -229,9 +229,10 @@ class NetSearch:
     def meets(self, size: tuple[int, int]) -> bool:
         return self.step(size).achieved <= self.value
 
-    def grown(self) -> tuple[int, int] | None:
-        """Grow, then bisect: the smallest meeting net on the way, or None (none met)."""
-        best, meeting = self.step(self.base), None
+    def grown(self, start: tuple[int, int] | None = None) -> tuple[int, int] | None:
+        """Grow from ``start`` (the base by default), then bisect: the smallest meeting net
+        on the way, or None (none met)."""
+        best, meeting = self.step(start or self.base), None
         while best.achieved > self.value and best.achieved > self.floor:
             untried = [g for g in growths(best.net_size, best.uneven, self.largest) if g not in self.steps]
             if not untried:
@@ -296,12 +297,13 @@ def searched(uniform: NetSearch, placed: NetSearch | None, deliver: Callable, va
     The uniform search first, then the placed knots' below its net (``placed``, None
     without a swarm); the fewest control points that met (:func:`chosen_step`) are fitted
     on every point, ``deliver(step) -> (result, achieved)``. Placed knots that miss there
-    give way to the uniform net. A net that met on the held-out points and misses on all
-    (at the margin, a fifth of the points puts a p99 a few percent off) does not meet:
-    its step takes the all-points figure and the search goes on from it, at most
-    ``RESEARCHES`` times."""
+    give way to the uniform net that met. A uniform net that met on the held-out points
+    and misses on all (at the margin, a fifth of the points puts a p99 a few percent off)
+    does not meet: its step takes the all-points figure and the search goes on from it,
+    at most ``RESEARCHES`` times."""
+    start = None
     for attempt in range(RESEARCHES + 1):
-        meeting = uniform.grown()
+        meeting = uniform.grown(start)
         if meeting is not None:
             meeting = uniform.shrunk(meeting)
             if placed is not None:  # below the classical net, where the knots' places decide
@@ -315,7 +317,7 @@ def searched(uniform: NetSearch, placed: NetSearch | None, deliver: Callable, va
         if achieved <= value or best.achieved > value or attempt == RESEARCHES:
             return best, result, achieved, steps
         uniform.steps[best.net_size] = dataclasses.replace(best, achieved=achieved)
-        uniform.base = best.net_size
+        start = best.net_size
 
 
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
