@@ -71,6 +71,17 @@ def dome(r: float, z: float, up: bool) -> Face:
     return face
 
 
+def fillet(R: float, r: float, z: float, up: bool) -> Face:
+    """A quarter of a torus: the round of radius r joining a disc of radius R at height
+    z +- r to a cylinder of radius R + r, tangent to both."""
+    s = 1.0 if up else -1.0
+    def face(u, v):
+        a = 0.5 * np.pi * v
+        rho = R + r * np.cos(a)
+        return np.stack([rho * np.cos(TAU * u), rho * np.sin(TAU * u), z + s * r * np.sin(a)], -1)
+    return face
+
+
 def square(origin, a, b) -> Face:
     """The parallelogram origin + u a + v b."""
     o, a, b = (np.asarray(x, float) for x in (origin, a, b))
@@ -122,6 +133,10 @@ OBJECTS = {o.name: o for o in [
            np.pi * 0.8 / 3.0 * (0.25 + 0.125 + 0.0625), 8000, "a cone's side and two discs: 63 and 117 degree creases"),
     Object("washer", [ring(0.25, 0.6, 0.0), ring(0.25, 0.6, 0.3), wall(0.6, 0.6, 0.0, 0.3), wall(0.25, 0.25, 0.0, 0.3)],
            np.pi * (0.36 - 0.0625) * 0.3, 8000, "a ring with a hole through it: two annuli, two walls"),
+    Object("rounded_can", [wall(0.5, 0.5, 0.1, 1.1), fillet(0.4, 0.1, 0.1, False), fillet(0.4, 0.1, 1.1, True),
+                           ring(0.0, 0.4, 0.0), ring(0.0, 0.4, 1.2)],
+           np.pi * 0.25 * 1.0 + 2.0 * np.pi * (0.016 + 0.4 * np.pi * 0.01 / 2.0 + 0.001 * 2.0 / 3.0), 8000,
+           "a can whose rims are rounded (radius 0.1): every join tangent"),
     Object("bracket", bracket(0.6), (0.3 + 0.3 * 0.5) * 0.6, 8000,
            "an L extruded: a concave edge, two L-shaped ends", true_faces=8),
 ]}
