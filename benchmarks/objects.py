@@ -82,6 +82,17 @@ def fillet(R: float, r: float, z: float, up: bool) -> Face:
     return face
 
 
+def holed_square(side: float, r: float, z: float) -> Face:
+    """A square of the given side at height z, centred on the axis, with a hole of radius
+    r: each ray from the centre runs from the hole's circle (v = 0) to the square (v = 1)."""
+    def face(u, v):
+        c, s = np.cos(TAU * u), np.sin(TAU * u)
+        reach = 0.5 * side / np.maximum(np.abs(c), np.abs(s))
+        rho = (1.0 - v) * r + v * reach
+        return np.stack([rho * c, rho * s, np.full_like(u, z)], -1)
+    return face
+
+
 def square(origin, a, b) -> Face:
     """The parallelogram origin + u a + v b."""
     o, a, b = (np.asarray(x, float) for x in (origin, a, b))
@@ -137,6 +148,10 @@ OBJECTS = {o.name: o for o in [
                            ring(0.0, 0.4, 0.0), ring(0.0, 0.4, 1.2)],
            np.pi * 0.25 * 1.0 + 2.0 * np.pi * (0.016 + 0.4 * np.pi * 0.01 / 2.0 + 0.001 * 2.0 / 3.0), 8000,
            "a can whose rims are rounded (radius 0.1): every join tangent"),
+    Object("holed_plate", [holed_square(1.0, 0.2, 0.0), holed_square(1.0, 0.2, 0.25), wall(0.2, 0.2, 0.0, 0.25)]
+           + [square((x, y, 0.0), (dx, dy, 0.0), (0, 0, 0.25)) for x, y, dx, dy in
+              ((-0.5, -0.5, 1, 0), (0.5, -0.5, 0, 1), (0.5, 0.5, -1, 0), (-0.5, 0.5, 0, -1))],
+           (1.0 - np.pi * 0.04) * 0.25, 8000, "a square plate with a round hole through it"),
     Object("bracket", bracket(0.6), (0.3 + 0.3 * 0.5) * 0.6, 8000,
            "an L extruded: a concave edge, two L-shaped ends", true_faces=8),
 ]}
