@@ -245,11 +245,33 @@ def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered
         return f"fit {step.net_size}", on_all(step.net_size)
 
     uniform = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
-    best, result, achieved, steps = searched(uniform, None, deliver, value)
+    best, result, achieved, steps = searched(uniform, None, None, deliver, value)
     assert delivered[0] == (6, 6)  # what the held-out points alone would deliver
     assert achieved <= value and result == f"fit {best.net_size}"
     assert best.net_size[0] * best.net_size[1] > 36
     assert uniform.steps[(6, 6)].achieved == pytest.approx(on_all((6, 6)))  # marked with the all-points figure
     plain = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
-    assert searched(plain, None, lambda step: (None, 0.0), value)[0].net_size == (6, 6)  # met on all: kept
+    assert searched(plain, None, None, lambda step: (None, 0.0), value)[0].net_size == (6, 6)  # met on all: kept
 
+
+
+def test_where_uniform_knots_stall_above_the_noise_the_swarm_places_knots_and_weights():
+    """Uniform knots stall at twice the tolerance (a turn no uniform span follows); knots
+    and weights placed by the swarm meet from 36 control points on: the rational search,
+    grown from the smallest net and shrunk, delivers its smallest meeting net. At the
+    noise no swarm runs."""
+    value = 1.0
+
+    def search(error, kind="uniform", floor=0.1):
+        return NetSearch(lambda size: Step(size, error(size), 0.0, (1.0, 1.0), kind), (4, 4), (20, 20), value, floor)
+
+    never = search(lambda size: pytest.fail("the placed knots run below a uniform net that met"), "swarm")
+    rational = search(lambda size: 36.0 / (size[0] * size[1]), "rational")
+    best, _, achieved, steps = searched(search(lambda size: 2.0 + 1.0 / (size[0] * size[1])), never, rational,
+                                        lambda step: (None, step.achieved), value)
+    assert best.knots == "rational" and achieved <= value
+    assert 36 <= best.net_size[0] * best.net_size[1] <= 40
+    assert all(s.achieved > value for s in steps if s.knots == "uniform")
+    unused = search(lambda size: pytest.fail("the noise stops the uniform search: no swarm"), "rational", 2.5)
+    at_noise = search(lambda size: 2.0, floor=2.5)
+    assert searched(at_noise, never, unused, lambda step: (None, step.achieved), value)[0].knots == "uniform"

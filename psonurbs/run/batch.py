@@ -260,16 +260,18 @@ def _failed(row: Row, path: Path, error: Exception, seconds: float) -> Row:
 
 
 TOLERANCE_COLUMNS = ["net_u", "net_v", "control_points", "achieved", "met", "seconds", "swarm"]
+SWARM_KINDS = ("uniform", "swarm", "rational")  # fit.tolerance.searched's knots: the CSV's swarm column 0, 1, 2
 
 
 def _tolerance_csv(searched: dict) -> str:
     """STEM_tolerance.csv: one row per net the search fitted (``fit.tolerance.searched``),
     achieved in cloud units, met as 1 or 0, control points nu x nv, swarm 1 where the
-    swarm placed the knots (0: uniform knots, the classical fit)."""
+    swarm placed the knots, 2 where it chose the weights too (0: uniform knots, the
+    classical fit)."""
     from psonurbs.formats.outputs import render_csv
 
     rows = [[*step["net_size"], step["net_size"][0] * step["net_size"][1], step["achieved"], step["achieved"] <= searched["value"],
-             step["seconds"], step["knots"] == "swarm"] for step in searched["searched"]]
+             step["seconds"], SWARM_KINDS.index(step["knots"])] for step in searched["searched"]]
     return render_csv(TOLERANCE_COLUMNS, np.array(rows, float).reshape(-1, len(TOLERANCE_COLUMNS)))
 
 

@@ -274,7 +274,8 @@ def plot_tolerance(tolerance: dict, title: str, path: Path) -> Path:
     """Achieved error (``fit.tolerance.searched``) against control points nu x nv, log y."""
     fig = _figure("tolerance")
     ax = fig.add_subplot(1, 1, 1)
-    for knots, marker, words in (("uniform", "o-", "uniform knots"), ("swarm", "^--", "knots placed by the swarm")):
+    for knots, marker, words in (("uniform", "o-", "uniform knots"), ("swarm", "^--", "knots placed by the swarm"),
+                                 ("rational", "v:", "knots and weights placed by the swarm")):
         steps = sorted((s for s in tolerance["searched"] if s.get("knots", "uniform") == knots),
                        key=lambda s: s["net_size"][0] * s["net_size"][1])
         if not steps:

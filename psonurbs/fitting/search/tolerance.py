@@ -21,11 +21,16 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
              swarm placing the knots at every size tried. Below the classical net is
              where the places of the knots decide; the classical net stays the
              fallback, so the swarm never costs control points
+    rational with a swarm configured, where no uniform net meets and their error
+             stalls above the noise (uniform polynomial spans cannot follow the
+             shape: a rounded rim's quarter circle, flat on one side, turning within
+             one span): grow and shrink from the smallest net with the swarm placing
+             the knots and choosing the weights too, the whole NURBS space
 
 and each stops at the largest net allowed (``net_size`` when given, else the budget of
 :mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
 (:data:`PLATEAU`), or when the error is at what the noise allows. The swarm of these
-fits searches the knots and the smoothing, not the weights: the weights' one dimension
+fits searches the knots and the smoothing, not the weights (but the rational search's): the weights' one dimension
 per control point would cost the knot search its precision (the public step_bump,
 bicubic, tolerance 3e-4 of the diagonal: the p99 of fits at 10 x 10, 11 x 11 and
 12 x 12 is 0.87, 1.00, 1.23 times it with the weights searched, 0.95, 0.92, 0.50
@@ -110,7 +115,7 @@ class Step:
     achieved: float
     seconds: float
     uneven: tuple[float, float]  # concentration of the excess over the knot spans along u, v
-    knots: str = "uniform"  # uniform: the classical fit; swarm: the knots placed by the swarm
+    knots: str = "uniform"  # uniform: the classical fit; swarm: knots placed by the swarm; rational: and weights
 
     def to_dict(self) -> dict:
         return {"net_size": list(self.net_size), "achieved": self.achieved, "seconds": round(self.seconds, 3),
@@ -291,24 +296,32 @@ def chosen_step(steps: list[Step], value: float) -> Step:
     return min(steps, key=lambda s: (s.achieved, s.net_size[0] * s.net_size[1]))
 
 
-def searched(uniform: NetSearch, placed: NetSearch | None, deliver: Callable, value: float):
+def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch | None, deliver: Callable,
+             value: float):
     """The nets searched and the chosen one delivered: (step, result, achieved, steps).
 
-    The uniform search first, then the placed knots' below its net (``placed``, None
-    without a swarm); the fewest control points that met (:func:`chosen_step`) are fitted
-    on every point, ``deliver(step) -> (result, achieved)``. Placed knots that miss there
-    give way to the uniform net that met. A uniform net that met on the held-out points
+    The uniform search first, then the placed knots' below its net (``placed``), or,
+    where no uniform net meets and their error stalls above the noise, the rational
+    search from the smallest net (``rational``; both None without a swarm); the fewest
+    control points that met (:func:`chosen_step`) are fitted on every point,
+    ``deliver(step) -> (result, achieved)``. Placed knots that miss there give way to
+    the uniform net that met. A uniform or rational net that met on the held-out points
     and misses on all (at the margin, a fifth of the points puts a p99 a few percent off)
-    does not meet: its step takes the all-points figure and the search goes on from it,
+    does not meet: its step takes the all-points figure and its search goes on from it,
     at most ``RESEARCHES`` times."""
-    start = None
+    searches = {"uniform": uniform, "swarm": placed, "rational": rational}
+    starts: dict[str, tuple[int, int] | None] = {"uniform": None, "rational": None}
     for attempt in range(RESEARCHES + 1):
-        meeting = uniform.grown(start)
+        meeting = uniform.grown(starts["uniform"])
         if meeting is not None:
             meeting = uniform.shrunk(meeting)
             if placed is not None:  # below the classical net, where the knots' places decide
                 placed.shrunk(meeting)
-        steps = list(uniform.steps.values()) + ([] if placed is None else list(placed.steps.values()))
+        elif rational is not None and chosen_step(list(uniform.steps.values()), value).achieved > uniform.floor:
+            found = rational.grown(starts["rational"])
+            if found is not None:
+                rational.shrunk(found)
+        steps = [step for search in searches.values() if search is not None for step in search.steps.values()]
         best = chosen_step(steps, value)
         result, achieved = deliver(best)
         if achieved > value and best.knots == "swarm":  # on every point the placed knots miss: the uniform net
@@ -316,8 +329,8 @@ def searched(uniform: NetSearch, placed: NetSearch | None, deliver: Callable, va
             result, achieved = deliver(best)
         if achieved <= value or best.achieved > value or attempt == RESEARCHES:
             return best, result, achieved, steps
-        uniform.steps[best.net_size] = dataclasses.replace(best, achieved=achieved)
-        start = best.net_size
+        searches[best.knots].steps[best.net_size] = dataclasses.replace(best, achieved=achieved)
+        starts[best.knots] = best.net_size
 
 
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
@@ -345,15 +358,15 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     swarm = config.strategy == "hybrid" and config.swarm.particles * config.swarm.iterations > 1
 
     def sized(size: tuple[int, int], knots: str):
-        swarm_config = config.swarm if knots == "swarm" else dataclasses.replace(config.swarm, particles=1,
-                                                                                 iterations=1)
+        swarm_config = config.swarm if knots != "uniform" else dataclasses.replace(config.swarm, particles=1,
+                                                                                   iterations=1)
         return dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology,
                                    swarm=swarm_config)
 
     def one_net(size: tuple[int, int], knots: str) -> Step:
         nonlocal topology, scores
         start = time.perf_counter()
-        result = fit(train, sized(size, knots), on_iteration=on_iteration, swarm_weights=False)
+        result = fit(train, sized(size, knots), on_iteration=on_iteration, swarm_weights=knots == "rational")
         topology = result.topology  # auto: chosen once, at the first net
         scores = result.info.get("topology_scores", scores)
         uv, dist = _held_distances(result.surface, judged)
@@ -366,12 +379,15 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     uniform = NetSearch(lambda size: one_net(size, "uniform"), base, largest, value, NOISE_MARGIN * floor)
     placed = NetSearch(lambda size: one_net(size, "swarm"), base, largest, value, NOISE_MARGIN * floor) \
         if swarm else None
+    rational = NetSearch(lambda size: one_net(size, "rational"), base, largest, value, NOISE_MARGIN * floor) \
+        if swarm else None
 
     def deliver(step: Step):
-        result = fit(points, sized(step.net_size, step.knots), on_iteration=on_iteration, swarm_weights=False)
+        result = fit(points, sized(step.net_size, step.knots), on_iteration=on_iteration,
+                     swarm_weights=step.knots == "rational")
         return result, measure(result.distances, name)
 
-    best, result, achieved, steps = searched(uniform, placed, deliver, value)
+    best, result, achieved, steps = searched(uniform, placed, rational, deliver, value)
     tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
                  "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
                  "noise": sigma, "searched": [s.to_dict() for s in steps]}
