@@ -389,6 +389,9 @@ def edge_figures(surface: Surface, grid: np.ndarray, us: np.ndarray, vs: np.ndar
 
 # ---- closest points on the surface ----------------------------------------------------------
 
+POLE_STARTS = 16  # Newton's starts for a point whose foot search ended on a pole
+
+
 class SurfaceDistance:
     """Distance from points to the (trimmed) surface, by the closest point (see the module)."""
 
@@ -407,6 +410,18 @@ class SurfaceDistance:
             self.rim = cKDTree(surface.at(rim[:, 0], rim[:, 1]))
         self.samples = points
         self.tree = cKDTree(points)
+        # Newton starts from the nearest sample off a row collapsed to a point (a pole): at
+        # the pole every u is the same point, and a start at the wrong one pushes out of the domain
+        rows = points.reshape(len(us), -1, 3) if not self.trimmed else None
+        seeds = np.ones(len(points), bool)
+        if rows is not None:
+            extent = float(np.ptp(points, axis=0).max()) or 1.0
+            for j in (0, rows.shape[1] - 1):
+                if np.ptp(rows[:, j], axis=0).max() <= 1e-9 * extent:
+                    seeds.reshape(len(us), -1)[:, j] = False
+        self.seed_params = self.params[seeds]
+        self.seed_tree = cKDTree(points[seeds]) if not seeds.all() else self.tree
+        self.poles = not seeds.all()
 
     def __call__(self, q: np.ndarray, chunk: int = 20000) -> np.ndarray:
         q = np.asarray(q, float)
@@ -414,10 +429,18 @@ class SurfaceDistance:
             np.zeros(0)
 
     def _chunk(self, q: np.ndarray) -> np.ndarray:
-        d0, nearest = self.tree.query(q)
-        u, v = self.params[nearest].T.copy()
+        d0 = self.tree.query(q)[0]
+        u, v = self.seed_params[self.seed_tree.query(q)[1]].T.copy()
         u, v = self._newton(q, u, v)
         d = np.linalg.norm(self.surface.at(u, v) - q, axis=1)
+        if self.poles:  # ended on a pole: from the other sides of it too (the foot may lie across it)
+            ended = np.flatnonzero((v <= self.surface.v.lo) | (v >= self.surface.v.hi))
+            if len(ended):
+                starts = self.seed_tree.query(q[ended], k=POLE_STARTS)[1]
+                for k in range(POLE_STARTS):
+                    su, sv = self.seed_params[starts[:, k]].T.copy()
+                    su, sv = self._newton(q[ended], su, sv)
+                    d[ended] = np.minimum(d[ended], np.linalg.norm(self.surface.at(su, sv) - q[ended], axis=1))
         if self.trimmed:
             off = ~self.surface.inside(u, v)
             d[off] = np.minimum(d0[off], self.rim.query(q[off])[0])

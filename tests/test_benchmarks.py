@@ -465,3 +465,36 @@ def test_the_runner_refuses_what_it_cannot_run(tmp_path):
         runner.main(["--cases", "torus_x", "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="needs --scans"):
         runner.main(["--suite", "real", "--out", str(tmp_path)])
+
+
+
+def test_the_scorer_finds_feet_across_a_pole():
+    """Points just off a sphere-topology surface near its poles, at every azimuth (the
+    rings next to the poles given light weights: the surface leaves its poles fast, the
+    pole is the nearest grid sample, and every u there is the same point): their
+    distances are never more than a dense grid's nearest sample's."""
+    from scipy.spatial import cKDTree
+
+    from psonurbs.config import config_from_dict
+    from psonurbs.fitting.pipeline import fit_points
+    from psonurbs.geometry.nurbs import NurbsSurface
+
+    rng = np.random.default_rng(2)
+    d = rng.standard_normal((3000, 3))
+    config = config_from_dict({"orders": [4, 4], "net_size": [8, 6], "topology": "sphere",
+                               "swarm": {"particles": 1, "iterations": 1}})
+    fit = fit_points(d / np.linalg.norm(d, axis=1, keepdims=True), config)
+    weights = fit.surface.weights.copy()
+    weights[:, [1, -2]] *= 0.15
+    surface = NurbsSurface(fit.surface.degree_u, fit.surface.degree_v, fit.surface.knots_u, fit.surface.knots_v,
+                           fit.surface.control_points, weights, fit.surface.closed_u, fit.surface.closed_v)
+    axis = np.asarray(fit.info["parametrisation"]["axis"])
+    frame = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
+    polar, azimuth = (a.ravel()[:, None] for a in np.meshgrid([0.002, 0.01, 0.03],
+                                                              np.linspace(0, 2 * np.pi, 24, endpoint=False)))
+    side = np.cos(azimuth) * frame[:, 0] + np.sin(azimuth) * frame[:, 1]
+    points = np.concatenate([1.05 * (np.cos(polar) * pole + np.sin(polar) * side) for pole in (axis, -axis)])
+    u, v = np.meshgrid(np.linspace(0, 1, 1500, endpoint=False), np.linspace(0, 1, 3000), indexing="ij")
+    dense = cKDTree(surface.evaluate(u.ravel(), v.ravel()).reshape(-1, 3)).query(points)[0]
+    found = scorer.SurfaceDistance(scorer.Surface(surface.to_dict()))(points)
+    assert np.all(found <= dense + 1e-9)
