@@ -116,6 +116,25 @@ def bracket(width: float) -> list[Face]:
     return walls + ends
 
 
+def filleted_box(r: float) -> list[Face]:
+    """A 1 x 0.7 x 0.4 box whose edge along x at y = z = 0 is rounded to radius r: five
+    flat faces, a quarter cylinder tangent to two of them, two ends each a rectangle, a
+    strip and a quarter disc."""
+    def fillet(u, v):
+        a = np.pi * (1.0 + 0.5 * v)
+        return np.stack([u, r + r * np.cos(a), r + r * np.sin(a)], -1)
+
+    def corner(x):
+        def face(u, v):
+            a = np.pi * (1.0 + 0.5 * u)
+            return np.stack([np.full_like(u, x), r + r * v * np.cos(a), r + r * v * np.sin(a)], -1)
+        return face
+    ends = [piece for x in (0.0, 1.0) for piece in (square((x, r, 0), (0, 0.7 - r, 0), (0, 0, 0.4)),
+                                                   square((x, 0, r), (0, r, 0), (0, 0, 0.4 - r)), corner(x))]
+    return [square((0, r, 0), (1, 0, 0), (0, 0.7 - r, 0)), square((0, 0, 0.4), (1, 0, 0), (0, 0.7, 0)),
+            square((0, 0, r), (1, 0, 0), (0, 0, 0.4 - r)), square((0, 0.7, 0), (1, 0, 0), (0, 0, 0.4)), fillet] + ends
+
+
 @dataclass(frozen=True)
 class Object:
     name: str
@@ -152,6 +171,8 @@ OBJECTS = {o.name: o for o in [
            + [square((x, y, 0.0), (dx, dy, 0.0), (0, 0, 0.25)) for x, y, dx, dy in
               ((-0.5, -0.5, 1, 0), (0.5, -0.5, 0, 1), (0.5, 0.5, -1, 0), (-0.5, 0.5, 0, -1))],
            (1.0 - np.pi * 0.04) * 0.25, 8000, "a square plate with a round hole through it"),
+    Object("filleted_box", filleted_box(0.1), 0.28 - (0.01 - np.pi * 0.01 / 4.0), 8000,
+           "a box with one edge rounded: a fillet tangent to two faces, sharp edges elsewhere", true_faces=7),
     Object("bracket", bracket(0.6), (0.3 + 0.3 * 0.5) * 0.6, 8000,
            "an L extruded: a concave edge, two L-shaped ends", true_faces=8),
 ]}

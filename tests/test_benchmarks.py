@@ -498,3 +498,18 @@ def test_the_scorer_finds_feet_across_a_pole():
     dense = cKDTree(surface.evaluate(u.ravel(), v.ravel()).reshape(-1, 3)).query(points)[0]
     found = scorer.SurfaceDistance(scorer.Surface(surface.to_dict()))(points)
     assert np.all(found <= dense + 1e-9)
+
+
+def test_a_rounded_edge_joins_its_two_faces_into_one_region_and_the_sharp_edges_still_part_them():
+    """The benchmark's box with one edge rounded (radius 0.1, a quarter of its height):
+    the fillet, bending 90 degrees over 8 point spacings, is no crease; the box's other
+    edges are. Five regions: the bottom, fillet and front as one; top, back, two ends."""
+    from psonurbs.objects.regions import segment
+
+    objects = load("objects", REPO / "benchmarks" / "objects.py")
+    points, _, _ = objects.sample(objects.OBJECTS["filleted_box"], 0)
+    regions = segment(points)
+    assert regions.count == 5
+    largest = points[regions.members(0)]
+    assert largest[:, 1].min() < 0.01 and largest[:, 2].min() < 0.01  # holds the front (y = 0) and the bottom (z = 0)
+    assert np.ptp(largest[:, 1]) > 0.5 and np.ptp(largest[:, 2]) > 0.25  # and reaches across both
