@@ -15,8 +15,8 @@ Regions smaller than ``MIN_SHARE`` of the cloud are given up (their points to no
 two regions that touch are merged where they meet smoothly: the mean normals of their
 points facing each other (each within ``CONTACT`` neighbours of the other region) are
 within ``CREASE``. Noise breaks a region's growth without a crease (a rough terrain), and
-so does a tight bend (a bottle's rounded corners, 40 degrees across); a crease (a can's
-rim, a shaft's step: 85-90 degrees) stays.
+so does a bend tighter than a neighbourhood (a bottle's rounded corners, 40 degrees
+across); a crease (a can's rim, a shaft's step: 85-90 degrees) stays.
 """
 from __future__ import annotations
 
