@@ -252,6 +252,10 @@ def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered
     assert uniform.steps[(6, 6)].achieved == pytest.approx(on_all((6, 6)))  # marked with the all-points figure
     plain = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)
     assert searched(plain, None, None, lambda step: (None, 0.0), value)[0].net_size == (6, 6)  # met on all: kept
+    far = NetSearch(held_out, (4, 4), (20, 20), value, 0.0)  # 20% off on all points: not a margin, no second search
+    best, _, achieved, _ = searched(far, None, None, lambda step: (None, 1.2 / (step.net_size[0] * step.net_size[1])),
+                                    value)
+    assert best.net_size == (6, 6) and achieved > value
 
 
 
