@@ -44,7 +44,7 @@ net is then fitted as usual on every point (a swarm's net that misses there give
 the classical one), and ``achieved`` is the measure of that delivered fit over all
 points; ``met`` says whether it meets the tolerance. A net that met on the held-out
 points and misses on all by a few percent does not meet: the search goes on from it
-once (:func:`searched`).
+(:func:`searched`).
 Without a net meeting it, the net
 of the least held-out error is delivered (the smaller on a tie): a larger net is never
 kept when a smaller one is as good.
@@ -82,7 +82,7 @@ PLATEAU = 0.97  # a grown net gains when its error is below this share of the be
 GAUSSIAN_P99 = 2.576  # the 99th percentile of |N(0, 1)|
 EDGE = 1e-9  # a foot parameter this close to 0 or 1 is on the edge of the domain
 NOISE_MARGIN = 1.05  # an error within this factor of what the noise allows cannot fall further
-RESEARCHES = 1  # times the search goes on past a net that met on the held-out points and missed on all
+RESEARCHES = 2  # times the search goes on past a net that met on the held-out points and missed on all
 RESEARCH_MARGIN = 1.05  # ... by at most this factor: a miss at the margin, not a search gone wrong
 
 
