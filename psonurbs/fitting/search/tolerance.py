@@ -30,8 +30,8 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
 and each stops at the largest net allowed (``net_size`` when given, else the budget of
 :mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
 (:data:`PLATEAU`), or when the error is at what the noise allows. The swarm of these
-fits searches the knots and the smoothing, not the weights (but the rational search's): the weights' one dimension
-per control point would cost the knot search its precision (the public step_bump,
+fits searches the knots and the smoothing, not the weights (the rational search's
+does): the weights' one dimension per control point would cost the knot search its precision (the public step_bump,
 bicubic, tolerance 3e-4 of the diagonal: the p99 of fits at 10 x 10, 11 x 11 and
 12 x 12 is 0.87, 1.00, 1.23 times it with the weights searched, 0.95, 0.92, 0.50
 without: the larger net is worse with them). The refinement still frees the weights
