@@ -336,6 +336,41 @@ def test_a_rectangle_filling_cloud_is_fitted_to_its_edges(seed):
     assert off_edge.max() <= spacing
 
 
+def spreading_past_the_data() -> NurbsSurface:
+    """A flat sheet x = X(u), y = 1.5 v whose last span in u spreads: X runs from 0 to 1 over
+    the first five control points and jumps to 4 at the sixth, |S_u| at u = 0.9 is 3.4x
+    its mean (a fit's surface past its last points, bulging where it extrapolates)."""
+    x = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 4.0])
+    nu, nv = len(x), 4
+    cp = np.stack(np.broadcast_arrays(x[:, None], np.linspace(0, 1.5, nv)[None, :], 0.0), axis=-1)
+    return NurbsSurface(3, 3, clamped_knots(nu, 3), clamped_knots(nv, 3), cp.astype(float), np.ones((nu, nv)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_margin_is_measured_on_the_surface_where_it_spreads_past_the_data(seed):
+    """Data filling x <= X(0.9) evenly, on a sheet stretched 3.4-fold past them: the trim
+    ends within the data's edge on average along it and nowhere three quarters of a
+    spacing past it, on the surface (a margin taken in the domain at the mean speeds
+    reached 0.7 to 1.0 spacings past it, 0.2 to 0.4 on average), and every point is on
+    the face."""
+    surface = spreading_past_the_data()
+    u = np.linspace(0, 1, 20001)
+    x_of_u = surface.evaluate(u, np.zeros_like(u))[:, 0]
+    end = float(np.interp(0.9, u, x_of_u))
+    n = 3000
+    xy = np.random.default_rng(seed).random((n, 2)) * [end, 1.5]
+    uv = np.column_stack([np.interp(xy[:, 0], x_of_u, u), xy[:, 1] / 1.5])
+    face = footprint(surface, surface.evaluate(*uv.T), uv, np.full(n, 1e-4), True)
+    spacing = np.sqrt(end * 1.5 / n)
+    us, vs = np.linspace(0.8, 1.0, 2001), np.linspace(0.02, 0.98, 200)
+    inside = face.trim.contains(np.stack(np.meshgrid(us, vs, indexing="ij"), axis=-1).reshape(-1, 2))
+    x = np.interp(us, u, x_of_u)
+    reach = (np.array([x[row].max() for row in inside.reshape(len(us), len(vs)).T]) - end) / spacing
+    assert face.points_outside == 0
+    assert -0.75 <= reach.mean() <= 0.0
+    assert reach.max() <= 0.75
+
+
 def test_a_triangle_is_judged_at_most_at_a_jump_times_its_densest_corner():
     """Without a jump in density on the surface a triangle is judged by its sparsest
     corner, but never wider than DENSITY_JUMP times its densest: one corner spread wide
