@@ -382,3 +382,32 @@ def test_a_triangle_is_judged_at_most_at_a_jump_times_its_densest_corner():
     density = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 3.0]])
     judged = footprint_module.judging_spacing(corners, density)
     np.testing.assert_allclose(judged, [1.5, jump, 1.0])
+
+
+def test_a_point_cut_off_the_raster_face_is_joined_back_to_it():
+    """Two pieces of a face raster, most points on the first, one point on a far blob (the
+    rim triangles joining it were bowed off): after ``rejoined`` the raster is one piece
+    holding every point, joined by a strip along the way to the nearest point."""
+    from scipy import ndimage
+
+    mask = np.zeros((60, 40), bool)
+    mask[5:30, 5:30] = True
+    mask[50:53, 30:33] = True
+    cell = 0.1
+    points = np.array([[1.0, 1.0], [2.0, 2.0], [2.5, 2.5], [5.15, 3.15]])  # (x, y) = (i, j) * cell
+    footprint_module.rejoined(mask, points, 0.0, 0.0, cell)
+    labels, count = ndimage.label(mask)
+    assert count == 1
+    assert mask[40, 28:30].any()  # on the segment from (5.15, 3.15) to (2.5, 2.5), at x = 4: y = 2.87
+    assert mask.sum() < 25 * 25 + 9 + 4 * 40  # a strip, not a filled hull
+
+
+def test_a_clamped_contour_loses_only_the_vertices_inside_its_runs_along_an_edge():
+    """Vertices in a row on the domain's edge: the ones between their neighbours along it
+    go (their segments would touch end to end), a vertex where the contour turns back
+    along the edge stays, as do vertices off the edge."""
+    lo, hi = np.array([0.0, 0.0]), np.array([1.0, 1.0])
+    polygon = np.array([[0.5, 0.2], [1.0, 0.3], [1.0, 0.4], [1.0, 0.5], [1.0, 0.6], [0.6, 0.7],
+                        [1.0, 0.8], [1.0, 0.9], [1.0, 0.85], [0.7, 0.95]])
+    keep = footprint_module.not_between_on_an_edge(polygon, lo, hi)
+    assert keep.tolist() == [True, True, False, False, True, True, True, True, True, True]

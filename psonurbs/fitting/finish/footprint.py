@@ -268,7 +268,10 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     field = surface_field(surface, mask, xs, ys, scale, cell, pad - cell)
     most = max(least, MARGIN * float(data_spacing[face_drawn].max()))
     margins = local_margin(field, xs, ys, x[face_drawn], data_spacing[face_drawn], least, most)
-    field -= margins
+    # and never wider than the margin in the domain (where the surface is compressed past the data)
+    in_domain_units = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+    field = np.maximum(field - margins, in_domain_units - local_margin(in_domain_units, xs, ys, x[face_drawn],
+                                                                       spacing[face_drawn], margin, widest))
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
