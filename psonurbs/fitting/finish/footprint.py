@@ -20,7 +20,7 @@ From the points' final parameters (their foot points on the fitted surface):
 5. **Loops.** The piece is rasterised, less the cells of its rim triangles where the
    surface bows sideways out of the triangle through the data (:func:`bent_off`), plus
    the cells around every point on it; its distance field, measured on the surface
-   outside it (:func:`surface_field`), is contoured at a margin of a quarter of the
+   outside it (:func:`distance_fields`), is contoured at a margin of a quarter of the
    local spacing (never less than a quarter of the median: :func:`local_margin`)
    (:func:`psonurbs.geometry.contour.contours`; a hole
    of less area than a disc of radius ``ALPHA`` median spacings is a sampling gap and is
@@ -265,11 +265,10 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     mark_joined(mask, on_face, x[face_drawn], xs[0], ys[0], cell)
     rejoined(mask, on_face, xs[0], ys[0], cell)
     least = max(MARGIN * float(np.median(data_spacing)), 3.0 * cell)  # on the surface; the raster resolves it
-    field = surface_field(surface, mask, xs, ys, scale, cell, pad - cell)
+    field, in_domain_units = distance_fields(surface, mask, xs, ys, scale, cell, pad - cell)
     most = max(least, MARGIN * float(data_spacing[face_drawn].max()))
     margins = local_margin(field, xs, ys, x[face_drawn], data_spacing[face_drawn], least, most)
     # and never wider than the margin in the domain (where the surface is compressed past the data)
-    in_domain_units = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
     field = np.maximum(field - margins, in_domain_units - local_margin(in_domain_units, xs, ys, x[face_drawn],
                                                                        spacing[face_drawn], margin, widest))
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
@@ -354,13 +353,14 @@ def rejoined(mask: np.ndarray, points: np.ndarray, x0: float, y0: float, cell: f
         mark_joined(mask, points[apart], points[~apart], x0, y0, cell)
 
 
-def surface_field(surface: NurbsSurface, mask: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarray,
-                  cell: float, reach: float) -> np.ndarray:
-    """The face's signed distance field (len(xs), len(ys)) on the raster of the domain at
-    the mean speeds (cells at (xs[i], ys[j]), ``mask`` the face): inside, minus the
-    distance to the face's rim in the domain; outside, within ``reach`` of the face in the
-    domain, the chord on the surface from the cell to its nearest face cell, |S(c) - S(f)|,
-    plus how far the cell lies beyond the domain [0, 1]^2; farther, ``FAR`` (finite: a
+def distance_fields(surface: NurbsSurface, mask: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarray,
+                    cell: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The face's signed distance fields (len(xs), len(ys)) on the raster of the domain at
+    the mean speeds (cells at (xs[i], ys[j]), ``mask`` the face), on the surface and in
+    the domain. Inside, both minus the distance to the face's rim in the domain; outside,
+    in the domain the distance to the nearest face cell, on the surface (within ``reach``
+    of the face in the domain) the chord from the cell to that face cell, |S(c) - S(f)|,
+    plus how far the cell lies beyond the domain [0, 1]^2, and farther ``FAR`` (finite: a
     contour that reaches the band's end is interpolated towards it, not towards inf).
 
     Measured on the surface because the surface is not stretched evenly past the data:
@@ -369,6 +369,7 @@ def surface_field(surface: NurbsSurface, mask: np.ndarray, xs: np.ndarray, ys: n
     surface, a strip of surface with no data in it."""
     inner = ndimage.distance_transform_edt(mask) * cell
     outer, (ni, nj) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    in_domain = np.where(mask, -inner, outer * cell)
     field = np.where(mask, -inner, FAR)
     band = np.nonzero(~mask & (outer * cell <= reach))
     if len(band[0]):
@@ -379,7 +380,7 @@ def surface_field(surface: NurbsSurface, mask: np.ndarray, xs: np.ndarray, ys: n
         face = np.clip(face, 0.0, 1.0)
         chord = np.linalg.norm(surface.evaluate(on[:, 0], on[:, 1]) - surface.evaluate(face[:, 0], face[:, 1]), axis=1)
         field[band] = chord + beyond
-    return field
+    return field, in_domain
 
 
 def vertex_tolerance(surface: NurbsSurface, polygon: np.ndarray, margins: np.ndarray, xs: np.ndarray,
