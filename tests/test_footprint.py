@@ -336,41 +336,6 @@ def test_a_rectangle_filling_cloud_is_fitted_to_its_edges(seed):
     assert off_edge.max() <= spacing
 
 
-def spreading_past_the_data() -> NurbsSurface:
-    """A flat sheet x = X(u), y = 1.5 v whose last span in u spreads: X runs from 0 to 1 over
-    the first five control points and jumps to 4 at the sixth, |S_u| at u = 0.9 is 3.4x
-    its mean (a fit's surface past its last points, bulging where it extrapolates)."""
-    x = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 4.0])
-    nu, nv = len(x), 4
-    cp = np.stack(np.broadcast_arrays(x[:, None], np.linspace(0, 1.5, nv)[None, :], 0.0), axis=-1)
-    return NurbsSurface(3, 3, clamped_knots(nu, 3), clamped_knots(nv, 3), cp.astype(float), np.ones((nu, nv)))
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_margin_is_measured_on_the_surface_where_it_spreads_past_the_data(seed):
-    """Data filling x <= X(0.9) evenly, on a sheet stretched 3.4-fold past them: the trim
-    ends within the data's edge on average along it and nowhere three quarters of a
-    spacing past it, on the surface (a margin taken in the domain at the mean speeds
-    reached 0.7 to 1.0 spacings past it, 0.2 to 0.4 on average), and every point is on
-    the face."""
-    surface = spreading_past_the_data()
-    u = np.linspace(0, 1, 20001)
-    x_of_u = surface.evaluate(u, np.zeros_like(u))[:, 0]
-    end = float(np.interp(0.9, u, x_of_u))
-    n = 3000
-    xy = np.random.default_rng(seed).random((n, 2)) * [end, 1.5]
-    uv = np.column_stack([np.interp(xy[:, 0], x_of_u, u), xy[:, 1] / 1.5])
-    face = footprint(surface, surface.evaluate(*uv.T), uv, np.full(n, 1e-4), True)
-    spacing = np.sqrt(end * 1.5 / n)
-    us, vs = np.linspace(0.8, 1.0, 2001), np.linspace(0.02, 0.98, 200)
-    inside = face.trim.contains(np.stack(np.meshgrid(us, vs, indexing="ij"), axis=-1).reshape(-1, 2))
-    x = np.interp(us, u, x_of_u)
-    reach = (np.array([x[row].max() for row in inside.reshape(len(us), len(vs)).T]) - end) / spacing
-    assert face.points_outside == 0
-    assert -0.75 <= reach.mean() <= 0.0
-    assert reach.max() <= 0.75
-
-
 def test_a_triangle_is_judged_at_most_at_a_jump_times_its_densest_corner():
     """Without a jump in density on the surface a triangle is judged by its sparsest
     corner, but never wider than DENSITY_JUMP times its densest: one corner spread wide
@@ -411,3 +376,37 @@ def test_a_clamped_contour_loses_only_the_vertices_inside_its_runs_along_an_edge
                         [1.0, 0.8], [1.0, 0.9], [1.0, 0.85], [0.7, 0.95]])
     keep = footprint_module.not_between_on_an_edge(polygon, lo, hi)
     assert keep.tolist() == [True, True, False, False, True, True, True, True, True, True]
+
+
+@pytest.mark.parametrize("bow", [0.0, 0.1])
+def test_raster_cells_where_the_surface_bows_out_of_a_rim_triangle_are_dropped(bow):
+    """One rim triangle with corners (0, 0), (1, 0.5), (0, 0.5) on the sheet
+    S(u, v) = (u, v + 4 bow u (1 - u)): its corners are where they are in the plane, its
+    long side's middle bows out by ``bow``. Cells of it farther than a cell's step
+    sideways from the triangle through the corners are dropped; near the corners (bowed by
+    less than a step) and on a flat sheet none."""
+    from scipy.spatial import Delaunay
+
+    from psonurbs.geometry.raster import rasterised
+
+    cp = np.zeros((3, 2, 3))
+    cp[:, :, 0] = np.array([0.0, 0.5, 1.0])[:, None]
+    cp[:, :, 1] = np.array([0.0, 1.0])[None, :] + np.array([0.0, 2.0 * bow, 0.0])[:, None]
+    surface = NurbsSurface(2, 1, clamped_knots(3, 2), clamped_knots(2, 1), cp, np.ones((3, 2)))
+    corners = np.array([[0.0, 0.0], [1.0, 0.5], [0.0, 0.5]])
+    far = 100.0 * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])
+    tri = Delaunay(np.concatenate([corners, far]))
+    in_face = np.all(tri.simplices < 3, axis=1)
+    cell = 0.01
+    xs, ys = np.arange(-0.05, 1.06, cell), np.arange(-0.05, 0.56, cell)
+    mask = rasterised(corners[None], xs[0], ys[0], cell, (len(xs), len(ys)))
+    scale = np.array([1.0, 1.0])
+    dropped = footprint_module.bent_off(surface, tri, in_face, mask, xs, ys, scale, cell,
+                                        surface.evaluate(corners[:, 0], corners[:, 1]))
+    i, j = np.nonzero(dropped)
+    if bow == 0.0:
+        assert not dropped.any()
+    else:
+        assert dropped[np.argmin(np.abs(xs - 0.5)), np.argmin(np.abs(ys - 0.45))]  # the bowed middle
+        assert np.all(np.minimum(xs[i], 1.0 - xs[i]) > 0.01)  # nothing at the corners' ends of the side
+        assert dropped.sum() < mask.sum()

@@ -121,24 +121,6 @@ def test_contours_of_an_annulus_are_its_two_circles_oriented():
     assert {tuple(q) for q in loops[0][fixed]} <= {tuple(q) for q in loose}
 
 
-def test_a_polygon_simplified_with_each_vertex_tolerance_keeps_each_within_its_own():
-    """Douglas-Peucker with a tolerance per vertex: a circle allowed 0.05 on its left half
-    and 1e-4 on its right keeps many more vertices on the right, and every dropped
-    vertex lies within its own tolerance of the kept polygon."""
-    t = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
-    circle = np.column_stack([np.cos(t), np.sin(t)])
-    each = np.where(circle[:, 0] < 0.0, 0.05, 1e-4)
-    kept = simplify_closed(circle, each)
-    assert np.sum(kept[:, 0] > 0.0) > 4 * np.sum(kept[:, 0] < 0.0)
-    a, b = kept, np.roll(kept, -1, axis=0)
-    seg = b - a
-    rel = circle[:, None, :] - a[None]
-    along = np.clip(np.sum(rel * seg, axis=2) / np.sum(seg * seg, axis=1), 0.0, 1.0)
-    gap = np.linalg.norm(rel - along[..., None] * seg, axis=2).min(axis=1)
-    assert np.all(gap <= each * (1 + 1e-9))
-    assert len(simplify_closed(circle, 0.05)) < len(kept) < len(simplify_closed(circle, 1e-4))
-
-
 def test_trimmed_mesh_follows_the_loops():
     s = open_surface()
     trim = plate_trim()

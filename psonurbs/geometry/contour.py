@@ -89,16 +89,13 @@ def crossings(f: np.ndarray, x: np.ndarray, y: np.ndarray, level: float, n_h: in
     return x[ei] + t * (x[ei + di] - x[ei]), y[ej] + t * (y[ej + 1 - di] - y[ej])
 
 
-def simplify_closed(polygon: np.ndarray, tolerance: float | np.ndarray, fixed: np.ndarray | None = None
-                    ) -> np.ndarray:
+def simplify_closed(polygon: np.ndarray, tolerance: float, fixed: np.ndarray | None = None) -> np.ndarray:
     """Douglas-Peucker simplification of a closed polygon (M, 2): every dropped vertex is
-    within ``tolerance`` (one for all, or each vertex's (M,)) of the kept polygon. The
-    vertices ``fixed`` (mask (M,)) are kept, and the first and the vertex farthest from
-    it, as anchors."""
+    within ``tolerance`` of the kept polygon. The vertices ``fixed`` (mask (M,)) are kept,
+    and the first and the vertex farthest from it, as anchors."""
     p = np.asarray(polygon, float)
     if len(p) <= 4:
         return p
-    within = np.broadcast_to(np.asarray(tolerance, float), len(p))
     far = int(np.argmax(np.sum((p - p[0]) ** 2, axis=1)))
     keep = np.zeros(len(p), bool) if fixed is None else np.array(fixed, bool)
     keep[[0, far]] = True
@@ -116,8 +113,8 @@ def simplify_closed(polygon: np.ndarray, tolerance: float | np.ndarray, fixed: n
             d = np.abs(seg[0] * rel[:, 1] - seg[1] * rel[:, 0]) / length
         else:
             d = np.hypot(rel[:, 0], rel[:, 1])
-        k = int(np.argmax(d / within[a + 1:b]))
-        if d[k] > within[a + 1 + k]:
+        k = int(np.argmax(d))
+        if d[k] > tolerance:
             keep[a + 1 + k] = True
             stack += [(a, a + 1 + k), (a + 1 + k, b)]
     return p[keep]

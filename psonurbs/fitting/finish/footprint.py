@@ -18,19 +18,17 @@ From the points' final parameters (their foot points on the fitted surface):
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
 5. **Loops.** The piece is rasterised, less the cells of its rim triangles where the
-   surface bows sideways out of the triangle through the data (:func:`bent_off`), plus
-   the cells around every point on it; its distance field, measured on the surface
-   outside it (:func:`distance_fields`), is contoured at a margin of a quarter of the
-   local spacing (never less than a quarter of the median: :func:`local_margin`)
-   (:func:`psonurbs.geometry.contour.contours`; a hole
+   surface bows sideways out of the triangle through the data (:func:`bent_off`: past
+   its last points a fitted surface is often stretched unevenly, a corner spreading or
+   an edge bulging where it extrapolates, and a triangle straight in the domain is a
+   flap on it), every point of the face kept on it (:func:`rejoined`); its distance
+   field is contoured at a margin of a
+   quarter of the local spacing outside it (never less than a quarter of the median:
+   :func:`local_margin`) (:func:`psonurbs.geometry.contour.contours`; a hole
    of less area than a disc of radius ``ALPHA`` median spacings is a sampling gap and is
    covered), and each contour fitted by a closed cubic B-spline with the fewest control points (doubling)
-   that keeps within half the margin of it on the surface (:func:`vertex_tolerance`),
-   inside the domain, every loop simple and apart from the others, and the piece's
-   points inside the face. Steps 3 and 4 work in the domain at the mean speeds, the
-   margin on the surface: past its last points a fitted surface is often stretched
-   unevenly (a corner spreading, an edge bulging where it extrapolates), and a margin
-   taken in the domain there is several spacings of surface with no data.
+   that keeps within half the margin of it, inside the domain, every loop simple
+   and apart from the others, and the piece's points inside the face.
 
 A footprint of more than ``FOOTPRINT_POINTS`` points is drawn from a well-spread
 subsample of them (:func:`well_spread`: one per cell of a grid of about that many cells,
@@ -96,7 +94,6 @@ FOOTPRINT_SEED = 14  # ... a fixed one
 GAP_SAMPLES = 40_000  # surface samples outside the face that measure its widest gap
 EDGE_SAMPLES = 400  # samples along each edge of the surface that measure how far it runs past the data
 EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: a strip of surface without data
-FAR = 1e300  # the distance field's value beyond the band it is measured in
 NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
 
 
@@ -214,7 +211,6 @@ class Contours:
     tolerance: np.ndarray  # (2,) half the margin, in u and v
     widest_gap: float  # the widest empty disc outside the face, in spacings of the data beside it (gap_scale)
     edge_overrun: float  # how far the surface's edges run past the data along a stretch, in spacings
-    vertex_tolerance: list[np.ndarray]  # (M, 2) per polygon: how far its loop may stray at each vertex
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
@@ -260,17 +256,11 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell, surface.evaluate(*(x / scale).T))
-    # every point on the face in it, whatever the margin (with a subsample, joined to the drawn point of its piece)
-    on_face = every[face_points] if subsampled else x[face_drawn]
-    mark_joined(mask, on_face, x[face_drawn], xs[0], ys[0], cell)
-    rejoined(mask, on_face, xs[0], ys[0], cell)
-    least = max(MARGIN * float(np.median(data_spacing)), 3.0 * cell)  # on the surface; the raster resolves it
-    field, in_domain_units = distance_fields(surface, mask, xs, ys, scale, cell, pad - cell)
-    most = max(least, MARGIN * float(data_spacing[face_drawn].max()))
-    margins = local_margin(field, xs, ys, x[face_drawn], data_spacing[face_drawn], least, most)
-    # and never wider than the margin in the domain (where the surface is compressed past the data)
-    field = np.maximum(field - margins, in_domain_units - local_margin(in_domain_units, xs, ys, x[face_drawn],
-                                                                       spacing[face_drawn], margin, widest))
+    if subsampled:  # and every point on the face, joined to the drawn point of its piece
+        mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
+    rejoined(mask, every[face_points] if subsampled else x[face_drawn], xs[0], ys[0], cell)
+    field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+    field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
     field[[0, -1], :] = field[:, [0, -1]] = np.inf
     # the widest gap on the surface outside the face: a real gap, or sampling?
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
@@ -289,30 +279,31 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     # circumcircle in a random sample), not a gap in the data: the face covers it
     smallest = np.pi * (ALPHA * float(np.median(spacing))) ** 2
     holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
-    kept = [polygons[outer], *holes]
-    return Contours(kept, good[face_points], int(np.sum(piece_area > 0) - 1), int(len(others)),
-                    float(np.median(spacing)), margin / 2.0 / scale, gap, overrun,
-                    [vertex_tolerance(surface, p, margins, xs, ys, scale, cell, margin / 2.0 / scale) for p in kept])
+    return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap, overrun)
 
 
 def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np.ndarray, xs: np.ndarray,
              ys: np.ndarray, scale: np.ndarray, cell: float, feet: np.ndarray) -> np.ndarray:
-    """The face's cells (mask of the raster, cells of side ``cell`` at (xs[i], ys[j])) in a
-    rim triangle (one with a side on the face's boundary) where the surface leaves the
-    data's triangle sideways: S(c) lies farther than a cell's step on the surface there
-    (cell max(|S_u| / scale_u, |S_v| / scale_v)) from the triangle through its corners'
-    foot points ``feet`` (N, 3), along the surface (the part of S(c) - sum_k b_k F_k in
-    the tangent plane; b the cell's barycentric coordinates in the domain triangle).
+    """The face's cells (mask of the raster, cells of side ``cell`` at (xs[i], ys[j]) in the
+    domain at the mean speeds ``scale``) in a rim triangle (one with a side on the face's
+    boundary) where the surface leaves the data's triangle sideways: S(c) lies farther
+    than a cell's step on the surface there (cell max(|S_u| / scale_u, |S_v| / scale_v))
+    from the triangle through its corners' foot points ``feet`` (N, 3), along the surface
+    (the part of S(c) - sum_k b_k F_k in the tangent plane; b the cell's barycentric
+    coordinates in the domain triangle).
 
     A triangle is straight in the domain and straight through the data; on a surface
     stretched unevenly past its last points (a corner spreading, an edge bulging where
-    the fit extrapolates) its image in the domain bows out of the data by a spacing and
-    more, a flap no point holds."""
+    the fit extrapolates) its image bows out of the data by a spacing and more: a flap
+    that no point holds."""
     rim_tri = in_face & np.any((tri.neighbors < 0) | ~in_face[np.maximum(tri.neighbors, 0)], axis=1)
     out = np.zeros_like(mask)
     if not rim_tri.any():
         return out
     cells = np.argwhere(mask & rasterised(tri.points[tri.simplices[rim_tri]], xs[0], ys[0], cell, mask.shape))
+    if not len(cells):
+        return out
     at = np.column_stack([xs[cells[:, 0]], ys[cells[:, 1]]])
     which = tri.find_simplex(at)
     hit = (which >= 0) & rim_tri[np.maximum(which, 0)]
@@ -321,9 +312,7 @@ def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np
         return out
     t = tri.transform[which]  # (K, 3, 2): barycentric b_0, b_1 = T (x - r), b_2 = 1 - b_0 - b_1
     b01 = np.einsum("kij,kj->ki", t[:, :2], at - t[:, 2])
-    bary = np.column_stack([b01, 1.0 - b01.sum(axis=1)])
-    corners = tri.simplices[which]
-    lifted = np.einsum("kc,kcd->kd", bary, feet[corners])
+    lifted = np.einsum("kc,kcd->kd", np.column_stack([b01, 1.0 - b01.sum(axis=1)]), feet[tri.simplices[which]])
     uv = np.clip(at / scale, 0.0, 1.0)
     on, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
     normal = np.cross(su, sv)
@@ -338,70 +327,25 @@ def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np
 
 def rejoined(mask: np.ndarray, points: np.ndarray, x0: float, y0: float, cell: float) -> None:
     """Join, in place, the raster's pieces holding some of the points (N, 2) to the piece
-    holding most of them: each point of another piece by the cells along the segment to
-    the nearest point of that one (:func:`mark_joined`). A point the alpha shape joins to
-    the face by sides the surface bows away from (:func:`bent_off`; a point past the
-    surface's edge, its foot on it) stays on the face, by a thin strip."""
+    holding most of them: each point of another piece (or of none) by the cells along
+    the segment to the nearest point of that one (:func:`mark_joined`). A point the alpha
+    shape joins to the face by sides the surface bows away from (:func:`bent_off`; a
+    point past the surface's edge, its foot on it) stays on the face, by a thin strip."""
     labels, count = ndimage.label(mask)
-    if count < 2:
-        return
     at = np.floor((points - [x0, y0]) / cell).astype(int)
-    piece = labels[at[:, 0], at[:, 1]]
-    main = np.argmax(np.bincount(piece[piece > 0])) if np.any(piece > 0) else 0
-    apart = piece != main
+    around = np.stack([labels[at[:, 0] + di, at[:, 1] + dj] for di, dj in ((0, 0), (0, 1), (1, 0), (1, 1))], axis=1)
+    if count == 0 or not np.any(around > 0):
+        return
+    main = np.argmax(np.bincount(around[around > 0]))
+    apart = ~np.any(around == main, axis=1)  # no cell around the point on the main piece
     if apart.any() and not apart.all():
         mark_joined(mask, points[apart], points[~apart], x0, y0, cell)
 
 
-def distance_fields(surface: NurbsSurface, mask: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarray,
-                    cell: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """The face's signed distance fields (len(xs), len(ys)) on the raster of the domain at
-    the mean speeds (cells at (xs[i], ys[j]), ``mask`` the face), on the surface and in
-    the domain. Inside, both minus the distance to the face's rim in the domain; outside,
-    in the domain the distance to the nearest face cell, on the surface (within ``reach``
-    of the face in the domain) the chord from the cell to that face cell, |S(c) - S(f)|,
-    plus how far the cell lies beyond the domain [0, 1]^2, and farther ``FAR`` (finite: a
-    contour that reaches the band's end is interpolated towards it, not towards inf).
-
-    Measured on the surface because the surface is not stretched evenly past the data:
-    where an edge bulges or a corner spreads (the fit extrapolating beyond its last
-    points), a margin in the domain at the mean speeds is several times wider on the
-    surface, a strip of surface with no data in it."""
-    inner = ndimage.distance_transform_edt(mask) * cell
-    outer, (ni, nj) = ndimage.distance_transform_edt(~mask, return_indices=True)
-    in_domain = np.where(mask, -inner, outer * cell)
-    field = np.where(mask, -inner, FAR)
-    band = np.nonzero(~mask & (outer * cell <= reach))
-    if len(band[0]):
-        at = np.column_stack([xs[band[0]], ys[band[1]]]) / scale
-        face = np.column_stack([xs[ni[band]], ys[nj[band]]]) / scale
-        on = np.clip(at, 0.0, 1.0)
-        beyond = np.linalg.norm((at - on) * scale, axis=1)
-        face = np.clip(face, 0.0, 1.0)
-        chord = np.linalg.norm(surface.evaluate(on[:, 0], on[:, 1]) - surface.evaluate(face[:, 0], face[:, 1]), axis=1)
-        field[band] = chord + beyond
-    return field, in_domain
-
-
-def vertex_tolerance(surface: NurbsSurface, polygon: np.ndarray, margins: np.ndarray, xs: np.ndarray,
-                     ys: np.ndarray, scale: np.ndarray, cell: float, most: np.ndarray) -> np.ndarray:
-    """How far (M, 2; in u and v) a loop may stray from each vertex of its contour
-    ``polygon`` (M, 2): half the margin on the surface there (``margins``, the raster's
-    margin field) over the surface's speeds |S_u|, |S_v| at the vertex, at most ``most``
-    (2,): where the surface is stretched past the data, the domain's step is wider on it."""
-    i = np.clip(np.rint((polygon[:, 0] * scale[0] - xs[0]) / cell).astype(int), 0, len(xs) - 1)
-    j = np.clip(np.rint((polygon[:, 1] * scale[1] - ys[0]) / cell).astype(int), 0, len(ys) - 1)
-    on = np.clip(polygon, 0.0, 1.0)
-    _, su, sv = surface.derivatives(on[:, 0], on[:, 1])
-    speed = np.maximum(np.column_stack([np.linalg.norm(su, axis=1), np.linalg.norm(sv, axis=1)]), 1e-300)
-    return np.minimum(0.5 * margins[i, j][:, None] / speed, most)
-
-
 def local_margin(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, face: np.ndarray, spacing: np.ndarray,
                  least: float, most: float) -> np.ndarray:
-    """The loops' margin on the surface at every cell of the raster (len(xs), len(ys)):
-    ``MARGIN`` times the local spacing on the surface of the nearest face point (face
-    (M, 2) in the domain, with their spacings (M,); the
+    """The loops' margin at every cell of the raster (len(xs), len(ys)): ``MARGIN`` times the
+    local spacing of the nearest face point (face (M, 2) with their spacings (M,); the
     median over its ``NEIGHBOURS`` nearest face points: a sparse end's, not one point's
     sampling luck) over sqrt 2
     (the nearest face point lies on its edge, its neighbours filling half a disc, which
@@ -604,8 +548,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
         return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
                          found.spacing)
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
-    loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points],
-                         found.vertex_tolerance)
+    loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
     trim = Trim(tuple(loops))
     empty = empty_share(surface, trim)
     outside = ~trim.contains(uv)
@@ -614,13 +557,12 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
                      found.fragment_points, found.spacing)
 
 
-def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray,
-                 vertex_tolerance: list[np.ndarray] | None = None) -> list[TrimLoop]:
+def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray
+                 ) -> list[TrimLoop]:
     """Closed B-splines for the contours (outer first).
 
     Each loop is first a cubic with the fewest control points, doubling from 8 up to
-    ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour, or within
-    ``vertex_tolerance`` (per contour, (M, 2): each vertex's) of the vertex nearest. Then,
+    ``MAX_CONTROL``, within ``tolerance`` (per direction, (2,)) of its contour. Then,
     together, the loops must be simple, apart, and hold ``must_inside`` (or pass within
     the tolerance of them, unless they are held on the domain's edge): a loop nearest a
     point left out gets twice the control points, and one already at the cap becomes its
@@ -630,23 +572,15 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
     """
     lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
     clamped = [np.clip(p, lo, hi) for p in polygons]
-    kept = [not_between_on_an_edge(p, lo, hi) for p in clamped]
-    clamped = [p[keep] for p, keep in zip(clamped, kept)]
-    if vertex_tolerance is not None:
-        vertex_tolerance = [t[keep] for t, keep in zip(vertex_tolerance, kept)]
+    clamped = [p[not_between_on_an_edge(p, lo, hi)] for p in clamped]
     probe = np.asarray(must_inside, float)
     on_edge = np.any((probe <= 0.0) | (probe >= 1.0), axis=1)
 
-    def close_enough(loop: TrimLoop, k: int) -> bool:
+    def close_enough(loop: TrimLoop, polygon: np.ndarray) -> bool:
         """Whether the loop keeps within the tolerance of its contour (where it would add
         empty surface; cutting inside is judged by ``must_inside``)."""
-        polygon = clamped[k]
-        dense = np.concatenate([polygon, 0.5 * (polygon + np.roll(polygon, -1, axis=0))])
-        each = np.broadcast_to(tolerance, polygon.shape) if vertex_tolerance is None else vertex_tolerance[k]
-        each = np.concatenate([each, np.minimum(each, np.roll(each, -1, axis=0))])
-        sample = loop.polygon(4 * len(polygon))
-        nearest = cKDTree(dense / tolerance).query(sample / tolerance)[1]
-        return bool(np.max(np.linalg.norm((sample - dense[nearest]) / each[nearest], axis=1)) <= 1.0)
+        dense = np.concatenate([polygon, 0.5 * (polygon + np.roll(polygon, -1, axis=0))]) / tolerance
+        return bool(cKDTree(dense).query(loop.polygon(4 * len(polygon)) / tolerance)[0].max() <= 1.0)
 
     def cubic(k: int, n: int) -> TrimLoop:
         return fit_closed_curve(polygons[k], n, 3, bounds=bounds, snap=tuple(2.0 * tolerance))
@@ -656,19 +590,18 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
             return polygon_loop(clamped[k])
         on = (clamped[k] <= lo) | (clamped[k] >= hi)  # (M, 2): the vertices on the domain's edge
         run_ends = np.any(on & ~(np.roll(on, 1, axis=0) & np.roll(on, -1, axis=0)), axis=1)
-        within = float(tolerance.min()) if vertex_tolerance is None else vertex_tolerance[k].min(axis=1)
-        simple = simplify_closed(clamped[k], within, fixed=run_ends)
+        simple = simplify_closed(clamped[k], float(tolerance.min()), fixed=run_ends)
         return polygon_loop(simple[not_between_on_an_edge(simple, lo, hi)])  # the dips between runs dropped
 
     cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
     counts, loops, exact = [], [], set()  # exact: the loops that are their contours themselves
     for k, p in enumerate(clamped):
         n, loop = 8, cubic(k, 8)
-        close = close_enough(loop, k)
+        close = close_enough(loop, p)
         while not close and 2 * n <= cap[k]:
             n *= 2
             loop = cubic(k, n)
-            close = close_enough(loop, k)
+            close = close_enough(loop, p)
         counts.append(n)
         loops.append(loop if close else polyline(k))
     while True:
@@ -714,11 +647,12 @@ def not_between_on_an_edge(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray) 
     """Mask (M,) of the vertices of a polygon (M, 2) clamped to the domain [lo, hi] that do
     not lie between two neighbours on the same edge of it: a contour that runs in and out
     past an edge leaves, clamped, runs of vertices in a row on the edge's line, whose
-    segments touch end to end (not a loop that crosses itself); the runs' ends stay."""
+    segments touch end to end (read as a loop that meets itself); the runs' ends stay,
+    and a vertex where the contour turns back along the edge."""
     keep = np.ones(len(polygon), bool)
     for k in (0, 1):
         t = polygon[:, 1 - k]
-        between = (np.roll(t, 1) - t) * (np.roll(t, -1) - t) < 0  # not where the contour turns back along it
+        between = (np.roll(t, 1) - t) * (np.roll(t, -1) - t) < 0
         for bound in (lo[k], hi[k]):
             on = polygon[:, k] == bound
             keep &= ~(on & np.roll(on, 1) & np.roll(on, -1) & between)
