@@ -429,8 +429,10 @@ class SurfaceDistance:
             np.zeros(0)
 
     def _chunk(self, q: np.ndarray) -> np.ndarray:
-        d0 = self.tree.query(q)[0]
-        u, v = self.seed_params[self.seed_tree.query(q)[1]].T.copy()
+        d0, nearest = self.tree.query(q)
+        if self.poles:  # the nearest sample off the poles instead
+            nearest = self.seed_tree.query(q)[1]
+        u, v = self.seed_params[nearest].T.copy()
         u, v = self._newton(q, u, v)
         d = np.linalg.norm(self.surface.at(u, v) - q, axis=1)
         if self.poles:  # ended on a pole: from the other sides of it too (the foot may lie across it)

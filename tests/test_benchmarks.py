@@ -467,7 +467,6 @@ def test_the_runner_refuses_what_it_cannot_run(tmp_path):
         runner.main(["--suite", "real", "--out", str(tmp_path)])
 
 
-
 def test_the_scorer_finds_feet_across_a_pole():
     """Points just off a sphere-topology surface near its poles, at every azimuth (the
     rings next to the poles given light weights: the surface leaves its poles fast, the

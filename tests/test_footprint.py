@@ -401,8 +401,7 @@ def test_raster_cells_where_the_surface_bows_out_of_a_rim_triangle_are_dropped(b
     xs, ys = np.arange(-0.05, 1.06, cell), np.arange(-0.05, 0.56, cell)
     mask = rasterised(corners[None], xs[0], ys[0], cell, (len(xs), len(ys)))
     scale = np.array([1.0, 1.0])
-    dropped = footprint_module.bent_off(surface, tri, in_face, mask, xs, ys, scale, cell,
-                                        surface.evaluate(corners[:, 0], corners[:, 1]))
+    dropped = footprint_module.bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
     i, j = np.nonzero(dropped)
     if bow == 0.0:
         assert not dropped.any()

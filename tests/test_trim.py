@@ -92,6 +92,10 @@ def test_crossing_finds_a_figure_eight_and_touching_loops():
     assert crossing([eight])
     assert not crossing([circle((0, 0), 1), circle((0, 0), 0.5, clockwise=True)])
     assert crossing([circle((0, 0), 1), circle((0.6, 0), 0.5, clockwise=True)])
+    # edges in a row on one line, apart (a loop clamped along the domain's edge): not a touch; overlapping: one
+    run = np.array([[0.0, 0.0], [0.3, 0.0], [0.5, 0.0], [0.8, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    assert not crossing([run])
+    assert crossing([np.array([[0.0, 0.0], [0.6, 0.0], [0.5, 0.2], [0.4, 0.0], [1.0, 0.0], [1.0, 1.0]])])
 
 
 def test_json_round_trip_and_validation():

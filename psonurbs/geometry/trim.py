@@ -139,7 +139,9 @@ def inside(polygons: list[np.ndarray], q: np.ndarray, bands: int = 64) -> np.nda
 
 def crossing(polygons: list[np.ndarray]) -> bool:
     """Whether any two edges of the closed polygons cross or touch (adjacent edges of
-    one polygon excepted): a loop that is not simple, or two loops that meet."""
+    one polygon excepted): a loop that is not simple, or two loops that meet. Two edges
+    on one line touch only where their extents along it overlap (a loop clamped to the
+    domain runs along its edge in several collinear edges in a row, apart)."""
     a = np.concatenate(polygons)
     b = np.concatenate([np.roll(p, -1, axis=0) for p in polygons])
     owner = np.concatenate([np.full(len(p), k) for k, p in enumerate(polygons)])
@@ -159,7 +161,11 @@ def crossing(polygons: list[np.ndarray]) -> bool:
 
     o1, o2 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
     o3, o4 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
-    return bool(np.any((o1 * o2 <= 0) & (o3 * o4 <= 0)))
+    collinear = (o1 == 0) & (o2 == 0)
+    lo = np.maximum(np.minimum(a[i], b[i]), np.minimum(a[j], b[j]))
+    hi = np.minimum(np.maximum(a[i], b[i]), np.maximum(a[j], b[j]))
+    overlap = np.all(lo <= hi, axis=1)  # the two edges' boxes meet: on one line, their extents do
+    return bool(np.any((o1 * o2 <= 0) & (o3 * o4 <= 0) & (~collinear | overlap)))
 
 
 def _closed_basis(n: int, degree: int) -> tuple[np.ndarray, sp.csr_array]:

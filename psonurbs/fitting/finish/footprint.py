@@ -255,7 +255,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     xs = np.arange(lo[0] - pad, hi[0] + pad + cell, cell)
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
-    mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell, surface.evaluate(*(x / scale).T))
+    mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
     if subsampled:  # and every point on the face, joined to the drawn point of its piece
         mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
     rejoined(mask, every[face_points] if subsampled else x[face_drawn], xs[0], ys[0], cell)
@@ -284,12 +284,12 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
 
 
 def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np.ndarray, xs: np.ndarray,
-             ys: np.ndarray, scale: np.ndarray, cell: float, feet: np.ndarray) -> np.ndarray:
+             ys: np.ndarray, scale: np.ndarray, cell: float) -> np.ndarray:
     """The face's cells (mask of the raster, cells of side ``cell`` at (xs[i], ys[j]) in the
     domain at the mean speeds ``scale``) in a rim triangle (one with a side on the face's
     boundary) where the surface leaves the data's triangle sideways: S(c) lies farther
     than a cell's step on the surface there (cell max(|S_u| / scale_u, |S_v| / scale_v))
-    from the triangle through its corners' foot points ``feet`` (N, 3), along the surface
+    from the triangle through its corners' foot points S(x_k / scale), along the surface
     (the part of S(c) - sum_k b_k F_k in the tangent plane; b the cell's barycentric
     coordinates in the domain triangle).
 
@@ -312,7 +312,10 @@ def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np
         return out
     t = tri.transform[which]  # (K, 3, 2): barycentric b_0, b_1 = T (x - r), b_2 = 1 - b_0 - b_1
     b01 = np.einsum("kij,kj->ki", t[:, :2], at - t[:, 2])
-    lifted = np.einsum("kc,kcd->kd", np.column_stack([b01, 1.0 - b01.sum(axis=1)]), feet[tri.simplices[which]])
+    corners = tri.simplices[which]
+    used, back = np.unique(corners, return_inverse=True)  # the corners' feet, each evaluated once
+    feet = surface.evaluate(*(np.clip(tri.points[used] / scale, 0.0, 1.0)).T)[back.reshape(corners.shape)]
+    lifted = np.einsum("kc,kcd->kd", np.column_stack([b01, 1.0 - b01.sum(axis=1)]), feet)
     uv = np.clip(at / scale, 0.0, 1.0)
     on, su, sv = surface.derivatives(uv[:, 0], uv[:, 1])
     normal = np.cross(su, sv)
@@ -571,8 +574,7 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
     two loops cross, all do.
     """
     lo, hi = np.array([bounds[0][0], bounds[1][0]]), np.array([bounds[0][1], bounds[1][1]])
-    clamped = [np.clip(p, lo, hi) for p in polygons]
-    clamped = [p[not_between_on_an_edge(p, lo, hi)] for p in clamped]
+    clamped = [q[not_between_on_an_edge(q, lo, hi)] for q in (np.clip(p, lo, hi) for p in polygons)]
     probe = np.asarray(must_inside, float)
     on_edge = np.any((probe <= 0.0) | (probe >= 1.0), axis=1)
 
@@ -591,7 +593,7 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
         on = (clamped[k] <= lo) | (clamped[k] >= hi)  # (M, 2): the vertices on the domain's edge
         run_ends = np.any(on & ~(np.roll(on, 1, axis=0) & np.roll(on, -1, axis=0)), axis=1)
         simple = simplify_closed(clamped[k], float(tolerance.min()), fixed=run_ends)
-        return polygon_loop(simple[not_between_on_an_edge(simple, lo, hi)])  # the dips between runs dropped
+        return polygon_loop(simple[not_between_on_an_edge(simple, lo, hi)])  # the runs the dips between them left
 
     cap = [min(MAX_CONTROL, len(p) // 2) for p in clamped]
     counts, loops, exact = [], [], set()  # exact: the loops that are their contours themselves
@@ -646,9 +648,9 @@ def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must
 def not_between_on_an_edge(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Mask (M,) of the vertices of a polygon (M, 2) clamped to the domain [lo, hi] that do
     not lie between two neighbours on the same edge of it: a contour that runs in and out
-    past an edge leaves, clamped, runs of vertices in a row on the edge's line, whose
-    segments touch end to end (read as a loop that meets itself); the runs' ends stay,
-    and a vertex where the contour turns back along the edge."""
+    past an edge leaves, clamped, runs of vertices in a row on the edge's line, which add
+    nothing to the loop but vertices (its simplification keeps every run's ends); the
+    runs' ends stay, and a vertex where the contour turns back along the edge."""
     keep = np.ones(len(polygon), bool)
     for k in (0, 1):
         t = polygon[:, 1 - k]
