@@ -82,12 +82,13 @@ def test_the_thin_edge_of_a_graded_cloud_is_no_outlier(noise):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_a_lone_corner_point_is_judged_with_its_neighbours_but_not_vouched_for(seed):
-    # the surface's own corner beyond a gap: the corner point's neighbours are the data's
-    # corner, whose own neighbourhoods (denser) do not reach back to it, so it links to
-    # none; it joins their piece (the loss judges it against where they lie), but nothing
-    # vouches for it (junk just beyond an edge looks the same): it may not steer the
-    # parametrisation, but the loss spares it (on their quadric, it is consistent)
+def test_a_lone_point_beyond_a_gap_is_judged_with_its_neighbours_but_neither_vouched_for_nor_spared(seed):
+    # the surface's own corner beyond a gap of about six spacings: the corner point's
+    # neighbours are the data's corner, whose own neighbourhoods (denser) do not reach back
+    # to it, so it links to none; it joins their piece (the loss judges it against where
+    # they lie), but it lies beyond every neighbourhood of theirs, where junk past an edge
+    # lies too (on their quadric's continuation, as consistent as any point): nothing
+    # vouches for it and the loss does not spare it
     rng = np.random.default_rng(seed)
     x, y = 0.06 + 0.94 * rng.random((2, 5000))
     x, y = np.r_[x, 0.0], np.r_[y, 0.0]
@@ -97,8 +98,33 @@ def test_a_lone_corner_point_is_judged_with_its_neighbours_but_not_vouched_for(s
     pieces = verdict.neighbourhoods()
     assert not verdict.outliers.any() and verdict.support[-1]
     assert pieces.on_main_piece.all() and pieces.vouched[:-1].all() and not pieces.vouched[-1]
-    assert pieces.spared.all() and pieces.lone_consistent[-1] and not pieces.lone_consistent[:-1].any()
+    assert not pieces.spared[-1] and not verdict.reached[-1].any()
     assert (pieces.index[-1] >= 0).sum() == pieces.index.shape[1]  # its neighbours count for it
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_strays_on_the_surface_past_an_edge_are_not_vouched_for(seed):
+    # Franke's surface on x < 0.8 and twelve strays on its continuation 5 to 10 spacings
+    # past that edge (off it by a noise sigma): their neighbours' quadric, extrapolated,
+    # passes through them within its growing uncertainty, so the quadric test cannot tell
+    # them from the edge; but no neighbourhood of the data reaches out to them (k = 24
+    # neighbours reach about 4 spacings past an edge: a stray within that is as much
+    # data as the edge's last points). Every point of the data is vouched for, none of
+    # the strays is, nor spared by the loss.
+    rng = np.random.default_rng(seed)
+    n, spacing = 5000, np.sqrt(0.8 / 5000)
+    x, y = 0.8 * rng.random(n), rng.random(n)
+    x = np.r_[x, 0.8 + rng.uniform(5, 10, 12) * spacing]
+    y = np.r_[y, rng.random(12)]
+    pts = np.column_stack([x, y, franke_z(x, y)])
+    pts += rng.normal(0, 1e-3 * np.linalg.norm(pts.max(0) - pts.min(0)), pts.shape)
+    verdict = local_outliers(normalised(pts))
+    pieces = verdict.neighbourhoods()
+    kept = verdict.inliers
+    data, strays = kept[:n], kept[n:]
+    assert data.all()
+    assert pieces.vouched[:n].all()
+    assert not pieces.spared[data.sum():].any() and strays.sum() >= 6
 
 
 def test_structured_sampling_is_no_outlier():

@@ -105,14 +105,15 @@ class Neighbourhoods:
 
     index: np.ndarray  # (N, k) agreeing neighbours on the main piece, -1 where none
     on_main_piece: np.ndarray  # (N,) bool: on the largest piece
-    vouched: np.ndarray  # (N,) bool: on it, and within SUPPORT_SIGMAS of its neighbours' quadric
+    vouched: np.ndarray  # (N,) bool: on it, within SUPPORT_SIGMAS of its neighbours' quadric and their reach
     lone_consistent: np.ndarray | None = None  # (N,) bool: a lone point (below) as near its neighbours' quadric
 
     @property
     def spared(self) -> np.ndarray:
         """(N,) the points the robust loss never leaves out: the vouched ones and the lone
-        points as consistent with their neighbours (the corner of a sparse edge). Only the
-        vouched may steer the parametrisation (junk just beyond an edge looks lone too)."""
+        points as consistent with their neighbours and within their reach (the corner of a
+        sparse edge). Only the vouched may steer the parametrisation (junk just beyond an
+        edge looks lone too)."""
         return self.vouched if self.lone_consistent is None else self.vouched | self.lone_consistent
 
     def median(self, values: np.ndarray) -> np.ndarray:
@@ -136,6 +137,7 @@ class LocalOutliers:
     neighbours: np.ndarray  # (N, k) each point's nearest support points (itself left out)
     agree: np.ndarray  # (N, k) bool: the neighbour has weight in the point's robust quadric
     order: np.ndarray  # (N,) the points in a spatial order (:func:`spatial_order`)
+    reached: np.ndarray | None = None  # (N, k) bool: the point lies within that neighbour's neighbourhood
 
     @property
     def inliers(self) -> np.ndarray:
@@ -178,12 +180,19 @@ class LocalOutliers:
         # denser quadrics do not reach back to them); the loss spares it if it lies as
         # near their quadric as a vouched point, with a bounded say
         lone = support & (sizes[piece] <= 1) & joins
+        chained = main
         main = main | (~support & joins)
         consistent = self.statistic[keep] <= SUPPORT_SIGMAS
-        vouched = main & consistent
+        # a point no neighbour on the chained piece reaches back to (it lies beyond every
+        # such neighbour's own neighbourhood: across a gap, out past an edge) may join the
+        # piece, but nothing vouches for it: junk there fits the quadric its neighbours
+        # extrapolate, whose uncertainty grows with the distance, as well as an edge point
+        reached = chained if self.reached is None else \
+            chained | np.any(valid & self.reached[keep] & chained[np.maximum(index, 0)], axis=1)
+        vouched = main & consistent & reached
         main = main | lone
         on_main = valid & main[np.maximum(index, 0)]
-        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched, lone & consistent)
+        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched, lone & consistent & reached)
 
     def to_dict(self, diagonal: float = 1.0) -> dict:
         """For the JSON: the count, the noise scale (in the units of ``diagonal``, the
@@ -400,4 +409,21 @@ def local_outliers(points: np.ndarray, neighbours: int = NEIGHBOURS) -> LocalOut
     noise = _noise(second, support)
     statistic = _statistic(second, noise)
     return LocalOutliers(statistic > OUTLIER_SIGMAS, statistic, noise, support, among_support, second.weights > 0,
-                         order)
+                         order, within_reach(points, among_support, order))
+
+
+def within_reach(points: np.ndarray, index: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """(N, k) bool: point i lies within the neighbourhood of its neighbour j = index[i, s],
+    no farther from j than j's own farthest neighbour index[j, -1] (i among j's nearest
+    but for ties): the neighbourhoods overlap both ways, not only from i across a gap.
+    Rows are taken in the spatial ``order`` (N,), in threads."""
+    reach = np.linalg.norm(points[index[:, -1]] - points, axis=1)
+    out = np.empty(index.shape, bool)
+
+    def chunk(part: slice) -> None:  # independent chunks, each writing its own rows
+        rows = order[part]
+        near = index[rows]
+        out[rows] = np.linalg.norm(points[near] - points[rows, None, :], axis=2) <= reach[near]
+
+    compiled.each(chunk, chunks(len(points), CHUNK))
+    return out

@@ -22,9 +22,9 @@ sigma and the median distance of its neighbours there, ``scale_i = max(sigma, m_
 it is left out only when it is far from the fit *and* from where its neighbours are.
 Junk its neighbours disagree with, and separate pieces (another object), keep sigma.
 A point the local test vouched for (on the main piece, within a few sigmas of the
-surface its neighbours describe), or a lone one as near it (the corner of a sparse edge,
-which the local test will not vouch for: junk just beyond an edge looks the same), is
-never left out: where the fit folds, tears or cannot reach between it and its neighbours,
+surface its neighbours describe and within the neighbourhood of one of them), or a lone
+one as near it and as near them (the corner of a sparse edge, which the local test will
+not vouch for), is never left out: where the fit folds, tears or cannot reach between it and its neighbours,
 the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)`` beyond the cut-off
 c_i, so that its pull w_i d_i stays below the floor's at the cut-off however far it is
 (a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
@@ -122,6 +122,18 @@ def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
     if neighbourhoods is None or 2 * int(neighbourhoods.vouched.sum()) < n:
         return np.ones(n, bool)
     return neighbourhoods.vouched
+
+
+def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
+    """(N,) bool over the input points, each the kept point ``source[i]`` (-1: a local
+    outlier): the points the robust stage doubts, local outliers and those the loss does
+    not spare (:attr:`Neighbourhoods.spared`; none when the local test vouched for under
+    half, as in :func:`trusted_points`). None: nothing was judged."""
+    if neighbourhoods is None:
+        return None
+    spared = neighbourhoods.spared if 2 * int(neighbourhoods.vouched.sum()) >= len(neighbourhoods.vouched) \
+        else np.ones(len(neighbourhoods.vouched), bool)
+    return (source < 0) | ~spared[np.maximum(source, 0)]
 
 
 def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
