@@ -283,6 +283,28 @@ def test_junk_just_past_an_edge_does_not_move_the_boundary(seed):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+def test_doubted_points_on_the_surface_past_an_edge_do_not_move_the_boundary(seed):
+    """Strays 5 to 8 spacings past the data's edge lying on the surface (at the noise
+    level: the fit passes through them), doubted by the robust stage, mark no data: the
+    face ends where the data end, as without them. Taken as data, they widen it."""
+    surface = plane()
+    uv = sample(lambda u, v: u < 0.8, 3000, seed=seed)
+    rng = np.random.default_rng(200 + seed)
+    spacing = np.sqrt(0.8 / 3000)
+    sigma = 0.05 * spacing * 2.0
+    junk = np.column_stack([0.8 + rng.uniform(5, 8, 40) * spacing, 0.3 + 0.4 * rng.random(40)])
+    both = np.vstack([uv, junk])
+    distances = np.abs(rng.normal(0, sigma, len(both)))
+    doubted = np.arange(len(both)) >= len(uv)
+    clean = footprint(surface, surface.evaluate(*uv.T), uv, distances[:len(uv)], True)
+    face = footprint(surface, surface.evaluate(*both.T), both, distances, True, doubted)
+    taken = footprint(surface, surface.evaluate(*both.T), both, distances, True)
+    assert outer_reach(face, 1) == pytest.approx(outer_reach(clean, 1), abs=0.5 * spacing)
+    assert not face.trim.contains(junk).any()
+    assert outer_reach(taken, 1) > outer_reach(clean, 1) + 3 * spacing
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_sparse_end_of_a_graded_cloud_stays_covered(seed):
     """Data on u > 0.2, their density falling twentyfold towards that edge: the face
     reaches the data's true edge to within a quarter of its spacing there (the last

@@ -41,6 +41,7 @@ from psonurbs.fitting.prepare.outliers import OUTLIER_SIGMAS, local_outliers
 from psonurbs.fitting.prepare.robust_weights import (
     CUTOFF_SIGMAS,
     classical_weights,
+    doubted_points,
     kept_sample,
     loss_summary,
     parameters_for_all,
@@ -196,7 +197,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         in_frame = cloud.frame.to_local(points)
         uv, dist = closest_parameters(surface, in_frame) if big is None else \
             every_foot_point(surface, in_frame, cloud.source, done.uv)
-        face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False)
+        face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False,
+                         doubted_points(cloud.neighbourhoods, cloud.source))
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
         checks = check_fit(surface, cloud.points, trim=face.trim)

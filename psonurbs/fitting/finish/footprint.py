@@ -13,7 +13,9 @@ From the points' final parameters (their foot points on the fitted surface):
    times the smallest; the smallest across a jump in density on the surface:
    :func:`judging_spacing`): a gap narrower than that is
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
-   farther off the surface than the points' spacing: :func:`marks_the_data`) are left out.
+   farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
+   and so are the points the robust stage doubts (``doubted``: junk the fit may have
+   been bent towards never holds a flap of the face).
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -218,11 +220,12 @@ class Contours:
         return np.maximum(np.concatenate([-p.min(axis=0), p.max(axis=0) - 1.0]), 0.0)
 
 
-def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray
-                  ) -> Contours | None:
+def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
+                  doubted: np.ndarray | None = None) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
     scale = mean_speeds(surface)
-    good = np.flatnonzero(marks_the_data(distances, uv, scale))
+    marks = marks_the_data(distances, uv, scale)
+    good = np.flatnonzero(marks if doubted is None else marks & ~doubted)
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
@@ -538,13 +541,14 @@ def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndar
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-              mode: str | bool) -> Footprint:
+              mode: str | bool, doubted: np.ndarray | None = None) -> Footprint:
     """The trim of an open fit from its points (N, 3), their foot-point parameters uv
-    (N, 2) and distances (N,), and the points' distances to the trimmed surface."""
+    (N, 2) and distances (N,), and the points' distances to the trimmed surface;
+    ``doubted`` (N,) bool: the points the robust stage does not vouch for, which mark no data."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if mode is False or len(uv) < 4:
         return whole
-    found = face_contours(surface, points, uv, distances)
+    found = face_contours(surface, points, uv, distances, doubted)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
     if mode == "auto" and found.widest_gap < ALPHA and found.edge_overrun <= EDGE_OVERRUN and len(found.polygons) == 1:
