@@ -126,14 +126,18 @@ def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
 
 def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
     """(N,) bool over the input points, each the kept point ``source[i]`` (-1: a local
-    outlier): the points the robust stage doubts, local outliers and those the loss does
-    not spare (:attr:`Neighbourhoods.spared`; none when the local test vouched for under
-    half, as in :func:`trusted_points`). None: nothing was judged."""
+    outlier): the points the robust stage doubts, local outliers and the points that join
+    the main piece of surface without being spared by the loss (:attr:`Neighbourhoods.spared`:
+    beyond every neighbour's reach, or off their quadric). A separate piece (a fragment, a
+    part of the scan apart from the rest) is not doubted for being apart. None: nothing
+    was judged; no point on the main piece is doubted when the local test vouched for
+    under half (as in :func:`trusted_points`)."""
     if neighbourhoods is None:
         return None
-    spared = neighbourhoods.spared if 2 * int(neighbourhoods.vouched.sum()) >= len(neighbourhoods.vouched) \
-        else np.ones(len(neighbourhoods.vouched), bool)
-    return (source < 0) | ~spared[np.maximum(source, 0)]
+    doubted = neighbourhoods.on_main_piece & ~neighbourhoods.spared
+    if 2 * int(neighbourhoods.vouched.sum()) < len(neighbourhoods.vouched):
+        doubted[:] = False
+    return (source < 0) | doubted[np.maximum(source, 0)]
 
 
 def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
