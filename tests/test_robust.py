@@ -12,12 +12,13 @@ from test_fit import config
 
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.fitting.pipeline import fit_points
-from psonurbs.fitting.prepare.outliers import Neighbourhoods
+from psonurbs.fitting.prepare.outliers import Neighbourhoods, local_outliers
 from psonurbs.fitting.prepare.robust_weights import (
     CUTOFF_SIGMAS,
     VOUCHED_FLOOR,
     biweights,
     classical_weights,
+    doubted_points,
     kept_sample,
 )
 from psonurbs.geometry.net import NetLayout
@@ -188,3 +189,33 @@ def test_the_weighted_paired_test_reduces_to_the_plain_one():
     n_eff = np.sum(w) ** 2 / np.sum(w ** 2)
     sd = np.sqrt(np.sum(w * (d - mean) ** 2) / np.sum(w) * n_eff / (n_eff - 1))
     assert paired_test(classical, swarm, w).z == pytest.approx(mean * np.sqrt(n_eff) / sd, rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_junk_joining_the_surface_from_afar_is_doubted_and_a_piece_apart_is_not(seed):
+    """Franke's surface on x < 0.7, a piece of it apart on x > 0.85, y > 0.5 (a gap of
+    about twelve spacings), 5% junk in the box. Junk the local test keeps and that joins
+    the main piece from more than 5 spacings off the data (beyond every neighbour's reach)
+    is doubted; no point of the data is, the piece apart included (a part of the scan apart
+    from the rest marks data: a doubted piece would be left off the trimmed face)."""
+    rng = np.random.default_rng(seed)
+    n, far, spacing = 4500, 600, np.sqrt(0.7 / 4500)
+    x = np.r_[0.7 * rng.random(n), 0.85 + 0.15 * rng.random(far)]
+    y = np.r_[rng.random(n), 0.5 + 0.5 * rng.random(far)]
+    data = np.column_stack([x, y, franke_z(x, y)])
+    data += rng.normal(0, 1.5e-3, data.shape)
+    pts = np.vstack([data, rng.uniform(data.min(axis=0), data.max(axis=0), (250, 3))])
+    scale = np.linalg.norm(np.ptp(pts, axis=0))
+    pts = (pts - pts.mean(axis=0)) / scale
+    verdict = local_outliers(pts)
+    pieces = verdict.neighbourhoods()
+    kept = verdict.inliers
+    source = np.where(kept, np.cumsum(kept) - 1, -1)
+    doubted = doubted_points(pieces, source)
+    gap = cKDTree(pts[:n + far]).query(pts[n + far:])[0] * scale / spacing
+    on_main = np.zeros(len(pts), bool)
+    on_main[kept] = pieces.on_main_piece
+    joined_from_afar = kept[n + far:] & on_main[n + far:] & (gap > 5.0)
+    assert kept[:n + far].all() and on_main[:n].all() and not on_main[n:n + far].any()
+    assert not doubted[:n + far].any()
+    assert joined_from_afar.sum() >= 5 and doubted[n + far:][joined_from_afar].all()
