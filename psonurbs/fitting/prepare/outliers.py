@@ -107,6 +107,7 @@ class Neighbourhoods:
     on_main_piece: np.ndarray  # (N,) bool: on the largest piece
     vouched: np.ndarray  # (N,) bool: on it, within SUPPORT_SIGMAS of its neighbours' quadric and their reach
     lone_consistent: np.ndarray | None = None  # (N,) bool: a lone point (below) as near its neighbours' quadric
+    beyond_reach: np.ndarray | None = None  # (N,) bool: joined to the main piece from beyond every neighbour's reach
 
     @property
     def spared(self) -> np.ndarray:
@@ -192,7 +193,8 @@ class LocalOutliers:
         vouched = main & consistent & reached
         main = main | lone
         on_main = valid & main[np.maximum(index, 0)]
-        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched, lone & consistent & reached)
+        return Neighbourhoods(np.where(main[:, None] & on_main, index, -1), main, vouched, lone & consistent & reached,
+                              main & ~reached)
 
     def to_dict(self, diagonal: float = 1.0) -> dict:
         """For the JSON: the count, the noise scale (in the units of ``diagonal``, the

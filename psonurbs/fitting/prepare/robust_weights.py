@@ -126,18 +126,19 @@ def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
 
 def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
     """(N,) bool over the input points, each the kept point ``source[i]`` (-1: a local
-    outlier): the points the robust stage doubts, local outliers and the points that join
-    the main piece of surface without being spared by the loss (:attr:`Neighbourhoods.spared`:
-    beyond every neighbour's reach, or off their quadric). A separate piece (a fragment, a
-    part of the scan apart from the rest) is not doubted for being apart. None: nothing
-    was judged; no point on the main piece is doubted when the local test vouched for
-    under half (as in :func:`trusted_points`)."""
+    outlier): the points the robust stage doubts, local outliers and the
+    points joined to the main piece of surface from beyond every neighbour's reach there
+    (:attr:`Neighbourhoods.beyond_reach`: junk past an edge). A point among the data a few
+    sigmas off (not spared by the loss) still says where the data lie, and a separate
+    piece (a part of the scan apart from the rest) is not doubted for being apart. None:
+    nothing was judged; only the local outliers when the local test vouched for under
+    half (as in :func:`trusted_points`)."""
     if neighbourhoods is None:
         return None
-    doubted = neighbourhoods.on_main_piece & ~neighbourhoods.spared
-    if 2 * int(neighbourhoods.vouched.sum()) < len(neighbourhoods.vouched):
-        doubted[:] = False
-    return (source < 0) | doubted[np.maximum(source, 0)]
+    beyond = neighbourhoods.beyond_reach
+    if beyond is None or 2 * int(neighbourhoods.vouched.sum()) < len(neighbourhoods.vouched):
+        beyond = np.zeros(len(neighbourhoods.vouched), bool)
+    return (source < 0) | beyond[np.maximum(source, 0)]
 
 
 def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
