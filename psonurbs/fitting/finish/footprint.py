@@ -15,7 +15,7 @@ From the points' final parameters (their foot points on the fitted surface):
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
    and so are the points the robust stage doubts (``doubted``: junk the fit may have
-   been bent towards never holds a flap of the face).
+   been bent towards holds no flap of the face).
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -544,7 +544,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
               mode: str | bool, doubted: np.ndarray | None = None) -> Footprint:
     """The trim of an open fit from its points (N, 3), their foot-point parameters uv
     (N, 2) and distances (N,), and the points' distances to the trimmed surface;
-    ``doubted`` (N,) bool: the points the robust stage does not vouch for, which mark no data."""
+    ``doubted`` (N,) bool: the points the robust stage doubts (local outliers, junk joined
+    to the surface from beyond its neighbours' reach), which mark no data."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if mode is False or len(uv) < 4:
         return whole

@@ -24,10 +24,10 @@ Junk its neighbours disagree with, and separate pieces (another object), keep si
 A point the local test vouched for (on the main piece, within a few sigmas of the
 surface its neighbours describe and within the neighbourhood of one of them), or a lone
 one as near it and as near them (the corner of a sparse edge, which the local test will
-not vouch for), is never left out: where the fit folds, tears or cannot reach between it and its neighbours,
-the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)`` beyond the cut-off
-c_i, so that its pull w_i d_i stays below the floor's at the cut-off however far it is
-(a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
+not vouch for), is never left out: where the fit folds, tears or cannot reach between
+it and its neighbours, the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)``
+beyond the cut-off c_i, so that its pull w_i d_i stays below the floor's at the cut-off
+however far it is (a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -126,8 +126,8 @@ def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
 
 def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
     """(N,) bool over the input points, each the kept point ``source[i]`` (-1: a local
-    outlier): the points the robust stage doubts, local outliers and the
-    points joined to the main piece of surface from beyond every neighbour's reach there
+    outlier): the points the robust stage doubts, local outliers and the points joined to
+    the main piece of surface from beyond every neighbour's reach there
     (:attr:`Neighbourhoods.beyond_reach`: junk past an edge). A point among the data a few
     sigmas off (not spared by the loss) still says where the data lie, and a separate
     piece (a part of the scan apart from the rest) is not doubted for being apart. None:
