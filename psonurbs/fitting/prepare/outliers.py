@@ -110,6 +110,12 @@ class Neighbourhoods:
     beyond_reach: np.ndarray | None = None  # (N,) bool: joined to the main piece from beyond every neighbour's reach
 
     @property
+    def vouches_for_most(self) -> bool:
+        """Whether the test vouched for at least half the points (else the cloud's noise hides
+        its structure at the scale of the neighbourhoods, and its vouching says nothing)."""
+        return 2 * int(self.vouched.sum()) >= len(self.vouched)
+
+    @property
     def spared(self) -> np.ndarray:
         """(N,) the points the robust loss never leaves out: the vouched ones and the lone
         points as consistent with their neighbours and within their reach (the corner of a
@@ -138,7 +144,7 @@ class LocalOutliers:
     neighbours: np.ndarray  # (N, k) each point's nearest support points (itself left out)
     agree: np.ndarray  # (N, k) bool: the neighbour has weight in the point's robust quadric
     order: np.ndarray  # (N,) the points in a spatial order (:func:`spatial_order`)
-    reached: np.ndarray | None = None  # (N, k) bool: the point lies within that neighbour's neighbourhood
+    reached: np.ndarray  # (N, k) bool: the point lies within that neighbour's neighbourhood (within_reach)
 
     @property
     def inliers(self) -> np.ndarray:
@@ -188,8 +194,7 @@ class LocalOutliers:
         # such neighbour's own neighbourhood: across a gap, out past an edge) may join the
         # piece, but nothing vouches for it: junk there fits the quadric its neighbours
         # extrapolate, whose uncertainty grows with the distance, as well as an edge point
-        reached = chained if self.reached is None else \
-            chained | np.any(valid & self.reached[keep] & chained[np.maximum(index, 0)], axis=1)
+        reached = chained | np.any(valid & self.reached[keep] & chained[np.maximum(index, 0)], axis=1)
         vouched = main & consistent & reached
         main = main | lone
         on_main = valid & main[np.maximum(index, 0)]
@@ -386,7 +391,7 @@ def local_outliers(points: np.ndarray, neighbours: int = NEIGHBOURS) -> LocalOut
     n = len(points)
     if n < MIN_POINTS:
         return LocalOutliers(np.zeros(n, bool), np.zeros(n), 0.0, np.ones(n, bool),
-                             np.zeros((n, 0), np.int64), np.zeros((n, 0), bool), np.arange(n))
+                             np.zeros((n, 0), np.int64), np.zeros((n, 0), bool), np.arange(n), np.zeros((n, 0), bool))
     k = min(neighbours, n - 1)
     everyone = np.arange(n)
     order = spatial_order(points)  # every pass below takes the points in it (the same answers, faster)

@@ -119,7 +119,7 @@ def trusted_points(neighbourhoods: Neighbourhoods | None, n: int) -> np.ndarray:
     """(N,) the points that may steer the parametrisation and start the first fit: those the
     local test vouches for (all, when it judged nothing, or vouched for under half: a cloud
     whose noise hides its structure at the scale of the neighbourhoods)."""
-    if neighbourhoods is None or 2 * int(neighbourhoods.vouched.sum()) < n:
+    if neighbourhoods is None or not neighbourhoods.vouches_for_most:
         return np.ones(n, bool)
     return neighbourhoods.vouched
 
@@ -136,8 +136,8 @@ def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) ->
     if neighbourhoods is None:
         return None
     beyond = neighbourhoods.beyond_reach
-    if beyond is None or 2 * int(neighbourhoods.vouched.sum()) < len(neighbourhoods.vouched):
-        beyond = np.zeros(len(neighbourhoods.vouched), bool)
+    if beyond is None or not neighbourhoods.vouches_for_most:
+        return source < 0
     return (source < 0) | beyond[np.maximum(source, 0)]
 
 
