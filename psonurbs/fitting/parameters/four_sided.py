@@ -15,7 +15,8 @@ circles as its parameter lines). For plane positions x (M, 2) of the embedded po
    length h before the vertex to the chord over h after it. The corners are the peaks
    turning at least ``CORNER`` in magnitude (each the largest within h), each placed
    where its two sides, extrapolated, meet (:func:`corner_place`). Four-sided: exactly
-   four peaks, all convex.
+   four peaks, all convex (a corner where the data thin out may turn less at h, and is
+   measured at its own spacing: :func:`corners`).
 3. **Boundary values** (:func:`boundary_values`): each side a curve from its corner to
    the next (the boundary smoothed over a spacing), mapped by its arc length onto a side
    of the square, u along the pair of opposite sides that are longer; each boundary
@@ -77,6 +78,7 @@ class Outline:
     simplices: np.ndarray  # (T,) each face's simplex in ``tri``
     loop: np.ndarray  # (B,) the outer boundary's vertices, counter-clockwise
     spacing: float  # median local spacing of the outer boundary's vertices
+    loop_spacing: np.ndarray  # (B,) the local spacing of each of them
 
 
 @dataclass(frozen=True)
@@ -108,9 +110,10 @@ class SmoothLoop:
         s = np.asarray(s, float) % self.length
         return np.column_stack([np.interp(s, self.t, self.curve[:, k]) for k in range(2)])
 
-    def turning(self, h: float) -> np.ndarray:
+    def turning(self, h: float | np.ndarray) -> np.ndarray:
         """(B,) the turning (radians, positive to the left) at each vertex: from the chord
-        of the smoothed curve over arc length h before it to the chord over h after it."""
+        of the smoothed curve over arc length h (one, or (B,): each vertex's own) before it
+        to the chord over h after it."""
         here = self.at(self.s)
         before, after = here - self.at(self.s - h), self.at(self.s + h) - here
         turn = np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])
@@ -225,7 +228,8 @@ def outline(x: np.ndarray) -> Outline | None:
     face = label == int(np.argmax(np.bincount(label[kept], weights=area[kept])))
     loops = boundary_loops(simplices, neighbours, face)
     outer = loops[int(np.argmax([signed_area(x[loop]) for loop in loops]))]
-    return Outline(tri, simplices[face], np.flatnonzero(face), outer, float(np.median(spacing[outer])))
+    return Outline(tri, simplices[face], np.flatnonzero(face), outer, float(np.median(spacing[outer])),
+                   spacing[outer])
 
 
 def without_detours(p: np.ndarray, spacing: float) -> np.ndarray:
@@ -256,18 +260,32 @@ def without_detours(p: np.ndarray, spacing: float) -> np.ndarray:
     return keep
 
 
-def corners(loop: SmoothLoop, h: float) -> Corners:
+def corners(loop: SmoothLoop, h: float, spacing: np.ndarray | None = None) -> Corners:
     """Step 2: the vertices of the loop turning at least ``CORNER`` at the scale h, each
-    the largest turn within arc length h of it (the first of equals), and their places."""
+    the largest turn within arc length h of it (the first of equals), and their places.
+
+    With the local ``spacing`` (B,) of the loop's vertices, a fourth corner may be found
+    where three are: where the data thin out, a corner is rounded over a spacing of the
+    sparse sampling (a random sample does not reach it), and at the scale h, set by the
+    median spacing, it turns less than its angle (a 20-fold density gradient's sparse
+    corners: 41 to 48 degrees). So where only three peaks turn ``CORNER``, the largest
+    other convex peak turning at least half of it is the fourth if, measured at ``SCALE``
+    of its own local spacing, it turns ``CORNER`` too. Where the sampling is even, its
+    scale is h, and a peak that turns less is no corner there either."""
     turn = loop.turning(h)
     size = np.abs(turn)
     index = np.arange(len(size))
-    peaks = []
-    for i in np.flatnonzero(size >= CORNER):
+    peaks, weaker = [], []
+    for i in np.flatnonzero(size >= 0.5 * CORNER):
         gap = np.abs(loop.s - loop.s[i])
         near = np.minimum(gap, loop.length - gap) <= h
         if size[i] >= size[near].max() and not np.any(size[near & (index < i)] == size[i]):
-            peaks.append(i)
+            (peaks if size[i] >= CORNER else weaker).append(i)
+    if spacing is not None and len(peaks) == SIDES - 1 and np.all(turn[peaks] > 0):
+        local = np.maximum(SCALE * np.asarray(spacing, float), h)
+        rounded = [i for i in weaker if turn[i] > 0 and loop.turning(local)[i] >= CORNER]
+        if rounded:
+            peaks = sorted(peaks + [max(rounded, key=lambda i: turn[i])])
     peaks = np.array(peaks, dtype=int)
     places = [corner_place(loop, i, h) for i in peaks]
     return Corners(peaks, turn[peaks], np.array([p for p, _ in places]).reshape(-1, 2),
@@ -396,8 +414,9 @@ def square_map(x: np.ndarray) -> tuple[SquareMap | None, list[float]]:
     if found is None:
         return None, []
     h = SCALE * found.spacing
-    boundary = found.loop[without_detours(x[found.loop], found.spacing)]
-    where = corners(SmoothLoop.of(x[boundary], h / 3.0, h / 12.0), h)
+    kept = without_detours(x[found.loop], found.spacing)
+    boundary = found.loop[kept]
+    where = corners(SmoothLoop.of(x[boundary], h / 3.0, h / 12.0), h, found.loop_spacing[kept])
     turns = [round(float(np.degrees(t)), 1) for t in where.turning]
     if not where.four_sided:
         return None, turns
