@@ -77,8 +77,12 @@ class Outline:
     faces: np.ndarray  # (T, 3) the piece's triangles, vertex indices into x, counter-clockwise
     simplices: np.ndarray  # (T,) each face's simplex in ``tri``
     loop: np.ndarray  # (B,) the outer boundary's vertices, counter-clockwise
-    spacing: float  # median local spacing of the outer boundary's vertices
     loop_spacing: np.ndarray  # (B,) the local spacing of each of them
+
+    @property
+    def spacing(self) -> float:
+        """The median local spacing of the outer boundary's vertices."""
+        return float(np.median(self.loop_spacing))
 
 
 @dataclass(frozen=True)
@@ -228,8 +232,7 @@ def outline(x: np.ndarray) -> Outline | None:
     face = label == int(np.argmax(np.bincount(label[kept], weights=area[kept])))
     loops = boundary_loops(simplices, neighbours, face)
     outer = loops[int(np.argmax([signed_area(x[loop]) for loop in loops]))]
-    return Outline(tri, simplices[face], np.flatnonzero(face), outer, float(np.median(spacing[outer])),
-                   spacing[outer])
+    return Outline(tri, simplices[face], np.flatnonzero(face), outer, spacing[outer])
 
 
 def without_detours(p: np.ndarray, spacing: float) -> np.ndarray:
@@ -267,8 +270,8 @@ def corners(loop: SmoothLoop, h: float, spacing: np.ndarray | None = None) -> Co
     With the local ``spacing`` (B,) of the loop's vertices, a fourth corner may be found
     where three are: where the data thin out, a corner is rounded over a spacing of the
     sparse sampling (a random sample does not reach it), and at the scale h, set by the
-    median spacing, it turns less than its angle (a 20-fold density gradient's sparse
-    corners: 41 to 48 degrees). So where only three peaks turn ``CORNER``, the largest
+    median spacing, it turns less than its angle (the sparse corners a 20-fold density
+    gradient hid: 29 to 43 degrees). So where only three peaks turn ``CORNER``, the largest
     other convex peak turning at least half of it is the fourth if, measured at ``SCALE``
     of its own local spacing, it turns ``CORNER`` too. Where the sampling is even, its
     scale is h, and a peak that turns less is no corner there either."""
@@ -282,8 +285,8 @@ def corners(loop: SmoothLoop, h: float, spacing: np.ndarray | None = None) -> Co
         if size[i] >= size[near].max() and not np.any(size[near & (index < i)] == size[i]):
             (peaks if size[i] >= CORNER else weaker).append(i)
     if spacing is not None and len(peaks) == SIDES - 1 and np.all(turn[peaks] > 0):
-        local = np.maximum(SCALE * np.asarray(spacing, float), h)
-        rounded = [i for i in weaker if turn[i] > 0 and loop.turning(local)[i] >= CORNER]
+        at_own_scale = loop.turning(np.maximum(SCALE * np.asarray(spacing, float), h))
+        rounded = [i for i in weaker if turn[i] > 0 and at_own_scale[i] >= CORNER]
         if rounded:
             peaks = sorted(peaks + [max(rounded, key=lambda i: turn[i])])
     peaks = np.array(peaks, dtype=int)
