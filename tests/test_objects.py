@@ -185,6 +185,55 @@ def test_an_l_bracket_closes_across_its_concave_edge():
     assert done.metrics["tolerance"]["met"]
 
 
+def mug(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, bend: float = 0.35, tube: float = 0.1,
+        noise: float = 5e-4) -> np.ndarray:
+    """A can with a handle (N, 3): a tube of radius ``tube`` bent round a circle of radius
+    ``bend`` in the plane y = 0, centred on the wall at half height, the part outside the
+    can; the wall has no data inside the handle's feet."""
+    rng = np.random.default_rng(seed)
+    centre = np.array([radius, 0.0, 0.5 * height])
+
+    def in_tube(p):
+        return np.hypot(np.hypot(p[:, 0] - centre[0], p[:, 2] - centre[2]) - bend, p[:, 1]) < tube
+
+    cloud = can(n, seed, radius, height, noise=0.0)
+    a, b = rng.uniform(0, 2 * np.pi, (2, 4 * n))
+    keep = rng.random(4 * n) < (bend + tube * np.cos(b)) / (bend + tube)  # area-uniform on the torus
+    a, b = a[keep], b[keep]
+    handle = centre + np.column_stack([(bend + tube * np.cos(b)) * np.cos(a), tube * np.sin(b),
+                                       (bend + tube * np.cos(b)) * np.sin(a)])
+    outside = np.hypot(handle[:, 0], handle[:, 1]) > radius
+    area = 4 * np.pi ** 2 * bend * tube * outside.mean()  # the torus's area outside the can
+    handle = handle[outside][:int(n * area / (2 * np.pi * radius * (radius + height)))]  # the can's density
+    p = np.vstack([cloud[~in_tube(cloud)], handle])
+    return p + noise * np.linalg.norm(np.ptp(p, axis=0)) * rng.standard_normal(p.shape)
+
+
+def test_a_mug_closes_with_its_handle_a_bent_tube_into_a_solid_of_its_volume():
+    """The handle is a region of its own, a tube bent round an arc (the cylinder topology
+    on a torus's angles); extended past its feet it crosses the wall, the parts inside
+    the can hold no data, and the shell closes into the can and the handle's volume."""
+    pytest.importorskip("OCP")
+    from psonurbs.config import config_from_dict
+    from psonurbs.objects.whole import fit_object
+
+    config = config_from_dict({"orders": [4, 4], "patches": "auto", "tolerance_rel": 2e-3,
+                               "swarm": {"particles": 1, "iterations": 1}})
+    done = fit_object(mug(8000), config)
+    assert len(done.faces) == 4 and sorted(f.topology for f in done.faces) == ["cylinder", "cylinder", "open", "open"]
+    handle = [f for f in done.faces if f.info["region_fit"]["parametrisation"]["method"] == "bent tube"]
+    assert len(handle) == 1
+    assert done.shell["closed"] and done.shell["valid"]
+    # the can, and the tube outside it by Monte Carlo over a box holding that part
+    rng = np.random.default_rng(1)
+    low, high = np.array([0.4, -0.1, 0.15]), np.array([0.95, 0.1, 1.05])
+    q = low + (high - low) * rng.random((1_000_000, 3))
+    inside = (np.hypot(np.hypot(q[:, 0] - 0.5, q[:, 2] - 0.6) - 0.35, q[:, 1]) < 0.1) & (np.hypot(q[:, 0], q[:, 1]) > 0.5)
+    volume = np.pi * 0.25 * 1.2 + np.prod(high - low) * inside.mean()
+    assert done.shell["volume"] == pytest.approx(volume, rel=0.005)
+    assert done.metrics["tolerance"]["met"]
+
+
 def test_free_edges_leave_no_direction_bounded():
     from psonurbs.config import config_from_dict
     from psonurbs.fitting.parameters.topology import layout_for

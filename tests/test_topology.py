@@ -7,7 +7,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting.parameters.closed import STRAY_SHARE, parametrise_cylinder, parametrise_sphere, parametrise_torus
+from psonurbs.fitting.parameters.closed import (
+    STRAY_SHARE,
+    parametrise_bent_tube,
+    parametrise_cylinder,
+    parametrise_sphere,
+    parametrise_torus,
+)
 from psonurbs.fitting.parameters.plane import parametrise_open
 from psonurbs.fitting.parameters.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
 from psonurbs.geometry.net import NetLayout
@@ -181,6 +187,21 @@ def torus_cloud(n=600, seed=0, major=2.0, minor=0.6, rotation=None):
     return pts if rotation is None else pts @ rotation.as_matrix().T
 
 
+def elbow_cloud(n=1500, seed=0, major=1.0, minor=0.25, arc=0.5 * np.pi, noise=5e-4, rotation=None,
+                centre=(0.4, -0.7, 1.1)):
+    """A bent tube (a pipe elbow, a handle): the torus's tube of radius ``minor`` over an
+    arc of its circle of radius ``major``, area-uniform, with Gaussian noise; also its
+    true angles along the arc and around the tube (N,) each."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(0, arc, 4 * n), rng.uniform(0, 2 * np.pi, 4 * n)
+    keep = np.flatnonzero(rng.random(4 * n) < (major + minor * np.cos(b)) / (major + minor))[:n]
+    a, b = a[keep], b[keep]
+    pts = np.column_stack([(major + minor * np.cos(b)) * np.cos(a), (major + minor * np.cos(b)) * np.sin(a),
+                           minor * np.sin(b)]) + noise * rng.standard_normal((len(a), 3))
+    rot = rotation or Rotation.identity()
+    return rot.apply(pts) + np.asarray(centre), a, b
+
+
 def capsule_cloud(n=1500, seed=0, radius=0.4, length=1.2, rotation=None):
     """A cylinder with hemispherical ends, uniform over its area: closed, prolate, no crease."""
     rng = np.random.default_rng(seed)
@@ -234,6 +255,45 @@ def test_parametrise_cylinder_recovers_axis_and_radius(seed):
     # v is the height along the axis, up to orientation
     h = (pts - pts.mean(axis=0)) @ axis
     assert abs(np.corrcoef(par.uv[:, 1], h)[0, 1]) > 0.9999
+
+
+@pytest.mark.parametrize("arc", [60, 90, 180, 260])
+def test_a_bent_tube_is_parametrised_by_its_angles(arc):
+    """An elbow's normals all meet the axis of its torus: u is the angle around the tube,
+    v the angle along the arc, its radii and axis those of the torus."""
+    rot = Rotation.from_euler("zyx", [25, -40, 70], degrees=True)
+    pts, along, around = elbow_cloud(arc=np.radians(arc), seed=arc, rotation=rot)
+    par = parametrise_cylinder(pts)
+    assert par.info["method"] == "bent tube"
+    assert angle_deg(par.info["axis"], rot.apply([0, 0, 1])) < 1.0
+    np.testing.assert_allclose(par.info["centre"], [0.4, -0.7, 1.1], atol=0.01)
+    assert par.info["major_radius"] == pytest.approx(1.0, rel=0.01)
+    assert par.info["radius"] == pytest.approx(0.25, rel=0.01)
+    assert par.info["arc"] == pytest.approx(arc / 360.0, abs=0.01)
+    assert par.uv.min() >= 0 and par.uv.max() <= 1
+    assert abs(np.corrcoef(par.uv[:, 1], along)[0, 1]) > 0.9999
+    # u turns with the angle around the tube, one way or the other, from its seam
+    turn = np.exp(2j * np.pi * par.uv[:, 0])
+    assert max(abs(np.mean(turn * np.exp(1j * around))), abs(np.mean(turn * np.exp(-1j * around)))) > 0.999
+    assert unsupported(par, pts, "cylinder") is None
+
+
+def test_a_straight_tube_a_ring_and_a_folded_sheet_are_no_bent_tube():
+    """The straight cylinder lies closer to a straight tube; a torus's arc closes; a
+    profile of revolution that does not go round its section (a vase's) and a sheet
+    folded like an S lie far from any torus: each keeps the straight tube's parameters."""
+    straight = cylinder_cloud(n=1500, seed=13)
+    assert parametrise_cylinder(straight).info["method"] == "cylinder"
+    ring = torus_cloud(n=1500, seed=13)
+    assert parametrise_bent_tube(ring).info["model_rms"] == np.inf
+    rng = np.random.default_rng(13)
+    a, h = rng.uniform(0, 2 * np.pi, 1500), rng.uniform(-1, 1, 1500)
+    r = 1.0 + 0.3 * np.cos(1.5 * h)
+    vase = np.column_stack([r * np.cos(a), r * np.sin(a), h])
+    assert parametrise_bent_tube(vase).info["model_rms"] == np.inf
+    t, w = rng.uniform(-1, 1, 1500), rng.uniform(0, 2, 1500)
+    s_fold = np.column_stack([np.sin(np.pi * t), w, np.sign(t) * (1 - np.cos(np.pi * t))])
+    assert parametrise_cylinder(s_fold).info["method"] == "cylinder"
 
 
 def test_parametrise_sphere_recovers_centre_and_radius():
@@ -322,6 +382,7 @@ def test_a_few_strays_neither_close_a_gap_nor_reach_a_pole():
     ("sphere", lambda: sphere_cloud(n=400, seed=7)),
     ("torus", lambda: torus_cloud(n=500, seed=8, rotation=Rotation.from_euler("y", 35, degrees=True))),
     ("sphere", lambda: capsule_cloud(seed=10, rotation=Rotation.from_euler("xz", [30, 60], degrees=True))),
+    ("cylinder", lambda: elbow_cloud(n=800, seed=11, rotation=Rotation.from_euler("xy", [50, 20], degrees=True))[0]),
 ])
 def test_choose_topology(expected, cloud):
     pts = cloud()

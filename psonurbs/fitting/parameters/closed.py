@@ -1,6 +1,8 @@
 """First parameters of the closed topologies: angles around a fitted axis.
 
-    cylinder  u: angle around the axis, v: height along it
+    cylinder  u: angle around the axis, v: height along it; for a bent tube (an
+              elbow, a handle: a torus's tube over part of its circle) u: angle around
+              the tube, v: angle along the bend
     sphere    u: longitude, v: latitude from pole (0) to pole (1)
     torus     u: angle around the axis, v: angle around the tube
 
@@ -47,6 +49,8 @@ def turn_fraction(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 STRAY_SHARE = 0.005  # share of a cloud that may be strays when its extent is judged (gaps, poles)
 PROLATE = 1.25  # a cloud this much longer than wide has its poles at its ends
+TUBE_GAP = 0.25  # a bent tube's data go round its section and leave this share of its arc's circle empty
+TUBE_FIT = 0.1  # ... and lie within this share of its radius of it (RMS)
 
 
 def largest_gap(turns: np.ndarray, strays: float = STRAY_SHARE) -> tuple[float, float]:
@@ -74,16 +78,77 @@ def cylinder_axis(points: np.ndarray) -> np.ndarray:
 
 
 def parametrise_cylinder(points: np.ndarray) -> Parametrisation:
-    """u: angle around the axis (seam in the widest gap), v: height along the axis."""
+    """A tube's parameters: those of a straight one (:func:`parametrise_straight_tube`)
+    or of a bent one (:func:`parametrise_bent_tube`), whichever model lies closer to
+    the points (N, 3)."""
+    straight = parametrise_straight_tube(points)
+    bent = parametrise_bent_tube(points)
+    return bent if bent.info["model_rms"] < straight.info["model_rms"] else straight
+
+
+def parametrise_straight_tube(points: np.ndarray) -> Parametrisation:
+    """u: angle around the axis (seam in the widest gap), v: height along the axis;
+    ``model_rms``: the points' RMS distance from the circular cylinder."""
     frame = frame_around(cylinder_axis(points))
     local = (points - points.mean(axis=0)) @ frame.T
     centre, radius = fit_circle(local[:, :2])
     u, gap = seam_at_gap(turn_fraction(local[:, 0] - centre[0], local[:, 1] - centre[1]))
     h = local[:, 2]
     v = (h - h.min()) / max(np.ptp(h), 1e-300)
+    rms = float(np.sqrt(np.mean((np.hypot(*(local[:, :2] - centre).T) - radius) ** 2)))
     return Parametrisation(np.column_stack([u, v]), {
         "method": "cylinder", "axis": [float(c) for c in frame[2]], "radius": radius,
-        "angular_gap": gap})
+        "angular_gap": gap, "model_rms": rms})
+
+
+def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The line (a point on it, unit direction) that the points' normal lines meet most
+    nearly: every normal of a surface of revolution meets its axis. A line with
+    direction a and moment m meets the normal line through p_i along n_i when
+    a . (p_i x n_i) + m . n_i = 0; (a, m) is the least singular vector of those rows
+    (N, 6), the points centred and scaled to unit spread first."""
+    sample = points[:: max(1, len(points) // 4000)]
+    normals = local_normals(sample)
+    centroid = sample.mean(axis=0)
+    scale = max(float(np.sqrt(np.mean(np.sum((sample - centroid) ** 2, axis=1)))), 1e-300)
+    q = (sample - centroid) / scale
+    rows = np.hstack([np.cross(q, normals), normals])
+    a, m = np.linalg.svd(rows, full_matrices=False)[2][-1].reshape(2, 3)
+    length = max(float(np.linalg.norm(a)), 1e-300)
+    a, m = a / length, m / length
+    return centroid + scale * np.cross(a, m), a
+
+
+def parametrise_bent_tube(points: np.ndarray) -> Parametrisation:
+    """A tube bent along a circular arc (an elbow, a handle), the torus's tube over part
+    of its circle. Its axis is the line its normals meet (:func:`normal_lines_axis`); in
+    the half-plane of (rho, z), the distance from the axis and the height along it, the
+    tube's section is a circle: centre (A, z_0), radius B (least squares). u: angle
+    around the tube (seam in its widest gap), v: angle along the arc, over the arc the
+    data cover (0 .. 1); ``model_rms``: the points' RMS distance from the torus. Data
+    that do not go round the section (a gap wider than ``TUBE_GAP`` there: a vase's
+    profile, a bowl), whose arc closes (no gap along it that wide: a torus), whose
+    section reaches the axis (B >= A) or that lie farther from the torus than
+    ``TUBE_FIT`` of its tube's radius (RMS: a folded sheet) are no bent tube (an
+    infinite RMS)."""
+    origin, axis = normal_lines_axis(points)
+    frame = frame_around(axis)
+    local = (points - origin) @ frame.T
+    rho = np.hypot(local[:, 0], local[:, 1])
+    (major, height), minor = fit_circle(np.column_stack([rho, local[:, 2]]))
+    d = np.hypot(rho - major, local[:, 2] - height)
+    along = turn_fraction(local[:, 0], local[:, 1])
+    gap, middle = largest_gap(along)
+    along = np.mod(along - middle, 1.0)  # the data's arc now runs from past 0 to short of 1
+    low, high = along.min(), along.max()
+    v = (along - low) / max(high - low, 1e-300)
+    u, tube_gap = seam_at_gap(turn_fraction(rho - major, local[:, 2] - height))
+    rms = float(np.sqrt(np.mean((d - minor) ** 2)))
+    tube = gap > TUBE_GAP and tube_gap <= TUBE_GAP and 0 < minor < major and rms < TUBE_FIT * minor
+    return Parametrisation(np.column_stack([u, v]), {
+        "method": "bent tube", "axis": [float(c) for c in frame[2]],
+        "centre": [float(c) for c in origin + height * frame[2]], "major_radius": float(major),
+        "radius": float(minor), "angular_gap": tube_gap, "arc": float(1.0 - gap), "model_rms": rms if tube else np.inf})
 
 
 def sphere_axis(points: np.ndarray, centre: np.ndarray) -> np.ndarray:

@@ -67,11 +67,12 @@ def layout_for(topology: str, net_size, degrees, free_edges: bool = False) -> Ne
     return NetLayout(tuple(net_size), tuple(degrees), closed, poles, free_edges)
 
 
-def on_axis(points: np.ndarray, axis: np.ndarray) -> bool:
-    """Whether the data (N, 3) reach the line along ``axis`` through their centroid:
-    ``ON_AXIS_POINTS`` of them within ``ON_AXIS_SPACINGS`` median spacings of it. A tube
-    or a ring has a hole there; a closed end (a capsule's, a bottle's) does not."""
-    radial = points - points.mean(axis=0)
+def on_axis(points: np.ndarray, axis: np.ndarray, through: np.ndarray | None = None) -> bool:
+    """Whether the data (N, 3) reach the line along ``axis`` through ``through`` (default:
+    their centroid): ``ON_AXIS_POINTS`` of them within ``ON_AXIS_SPACINGS`` median
+    spacings of it. A tube or a ring has a hole there; a closed end (a capsule's, a
+    bottle's) does not."""
+    radial = points - (points.mean(axis=0) if through is None else through)
     radial = np.linalg.norm(radial - np.outer(radial @ axis, axis), axis=1)
     return int(np.sum(radial < ON_AXIS_SPACINGS * median_spacing(points))) >= ON_AXIS_POINTS
 
@@ -106,7 +107,7 @@ def without_edge(points: np.ndarray) -> str | None:
 def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
     """Why the cloud cannot carry this closed topology's parametrisation (None if it can)."""
     info = par.info
-    if topology in ("cylinder", "torus") and on_axis(points, np.asarray(info["axis"])):
+    if topology in ("cylinder", "torus") and on_axis(points, np.asarray(info["axis"]), info.get("centre")):
         return "the data reach its axis (an end closes there, no hole through it)"
     gaps = info.get("angular_gaps") or ([info["angular_gap"]] if "angular_gap" in info else [])
     for name, gap in zip(("around the axis", "around the tube"), gaps):
@@ -116,7 +117,7 @@ def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str 
         lo, hi = info["latitude_range"]
         if lo > POLE_REACH or hi < 1.0 - POLE_REACH:
             return "the data do not reach both poles"
-    if topology == "cylinder":
+    if topology == "cylinder" and info["method"] == "cylinder":  # a straight tube's ends (a bent one's are its section)
         axis = np.asarray(info["axis"])
         radial = points - points.mean(axis=0)
         radial = np.linalg.norm(radial - np.outer(radial @ axis, axis), axis=1)
