@@ -234,6 +234,14 @@ def torus(u, v):
     return xyz(ring * np.cos(around), ring * np.sin(around), small * np.sin(tube_angle))
 
 
+def elbow(u, v):
+    """A pipe elbow: a tube of radius 0.3 bent along 120 degrees of a circle of radius 1;
+    u around the tube, v along the bend."""
+    around, along = TAU * u, np.radians(120.0) * v
+    ring = 1.0 + 0.3 * np.cos(around)
+    return xyz(ring * np.cos(along), ring * np.sin(along), 0.3 * np.sin(around))
+
+
 def curl(u, v):
     """250 degrees of a cylinder: no plane sees it as a height field."""
     angle = np.radians(-35.0) + np.radians(250.0) * u
@@ -612,6 +620,8 @@ def feature_cases() -> list[Case]:
         # smooth shapes: the swarm must not make them worse
         case("saddle_noisy", saddle, scattered(3000), (8, 8), "a saddle, noise 0.3%", noise=0.003),
         case("vase", vase, scattered(4000), (10, 6), "a vase (radius varying with height), closed in u",
+             noise=0.001, topology="cylinder"),
+        case("elbow", elbow, scattered(4000), (8, 6), "a pipe elbow: a tube bent along 120 degrees, closed in u",
              noise=0.001, topology="cylinder"),
         case("sphere_sparse", sphere((0.3, -0.2, 0.1), 1.2), equal_area_sphere(900), (8, 6),
              "900 points on a sphere, noise", noise=0.002, topology="sphere"),

@@ -135,6 +135,43 @@ def filleted_box(r: float) -> list[Face]:
             square((0, 0, r), (1, 0, 0), (0, 0, 0.4 - r)), square((0, 0.7, 0), (1, 0, 0), (0, 0, 0.4)), fillet] + ends
 
 
+def handle(radius: float, height: float, bend: float, tube: float) -> Face:
+    """A mug's handle: a tube of radius ``tube`` bent round a circle of radius ``bend`` in
+    the plane y = 0, centred on a can's wall (radius ``radius``) at half its height; u
+    along the bend, v around the tube. Only its part outside the can belongs to the mug
+    (:func:`outside_can`)."""
+    def face(u, v):
+        ring = bend + tube * np.cos(TAU * v)
+        return np.stack([radius + ring * np.cos(TAU * u), tube * np.sin(TAU * v), 0.5 * height + ring * np.sin(TAU * u)], -1)
+    return face
+
+
+def outside_can(radius: float):
+    """Keeps the triangles (centres (T, 3)) outside the can's wall."""
+    return lambda c: np.hypot(c[:, 0], c[:, 1]) > radius
+
+
+def outside_handle(radius: float, height: float, bend: float, tube: float):
+    """Keeps the triangles (centres (T, 3)) outside the handle's tube (the wall under its feet)."""
+    return lambda c: np.hypot(np.hypot(c[:, 0] - radius, c[:, 2] - 0.5 * height) - bend, c[:, 1]) > tube
+
+
+def handle_volume(radius: float, bend: float, tube: float, n: int = 400) -> float:
+    """The volume of the handle's tube outside the can: the midpoint rule in the tube's
+    coordinates (r, theta around the tube, phi along the bend), dV = r (bend + r cos theta)
+    dr dtheta dphi, over the points with x^2 + y^2 > radius^2 (error ~1e-5 relative)."""
+    r = (np.arange(n // 4) + 0.5) / (n // 4) * tube
+    theta = (np.arange(n) + 0.5) / n * TAU
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * TAU
+    rr, tt = np.meshgrid(r, theta, indexing="ij")
+    ring = bend + rr * np.cos(tt)
+    volume = 0.0
+    for p in phi:  # one slice along the bend at a time: n^2 / 4 points
+        outside = (radius + ring * np.cos(p)) ** 2 + (rr * np.sin(tt)) ** 2 > radius ** 2
+        volume += float(np.sum(rr * ring * outside))
+    return volume * (tube / len(r)) * (TAU / n) * (TAU / len(phi))
+
+
 @dataclass(frozen=True)
 class Object:
     name: str
@@ -144,6 +181,7 @@ class Object:
     note: str
     noise: float = 5e-4
     true_faces: int | None = None  # faces of the part, where some are sampled as several pieces
+    keep: tuple = ()  # per face, None or which of its triangles (centres (T, 3) -> bool) belong to the part
 
     @property
     def face_count(self) -> int:
@@ -175,21 +213,29 @@ OBJECTS = {o.name: o for o in [
            "a box with one edge rounded: a fillet tangent to two faces, sharp edges elsewhere", true_faces=7),
     Object("bracket", bracket(0.6), (0.3 + 0.3 * 0.5) * 0.6, 8000,
            "an L extruded: a concave edge, two L-shaped ends", true_faces=8),
+    Object("mug", [wall(0.5, 0.5, 0.0, 1.2), ring(0.0, 0.5, 0.0), ring(0.0, 0.5, 1.2), handle(0.5, 1.2, 0.35, 0.1)],
+           np.pi * 0.25 * 1.2 + handle_volume(0.5, 0.35, 0.1), 9000,
+           "a can with a handle: a tube bent along an arc, its feet on the wall",
+           keep=(outside_handle(0.5, 1.2, 0.35, 0.1), None, None, outside_can(0.5))),
 ]}
 
 
 def sample(obj: Object, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cloud (N, 3), and the truth as one mesh (vertices, triangles)."""
     rng = np.random.default_rng(seed)
-    grid = np.linspace(0.0, 1.0, 161)
     meshes, areas = [], []
-    for face in obj.faces:
+    for face, keep in zip(obj.faces, obj.keep or [None] * len(obj.faces)):
+        cells = 160 if keep is None else 640  # a clipped face ends within half a cell of its cut
+        grid = np.linspace(0.0, 1.0, cells + 1)
         uu, vv = np.meshgrid(grid, grid, indexing="ij")
         vertices = face(uu.ravel(), vv.ravel())
-        k = np.arange(160)
+        k = np.arange(cells)
         i, j = np.meshgrid(k, k, indexing="ij")
-        a, b = (i * 161 + j).ravel(), ((i + 1) * 161 + j).ravel()
+        a, b = (i * (cells + 1) + j).ravel(), ((i + 1) * (cells + 1) + j).ravel()
         triangles = np.concatenate([np.column_stack([a, b, b + 1]), np.column_stack([a, b + 1, a + 1])])
+        if keep is not None:  # the part's triangles only, and only their vertices (the truth's samples)
+            used, triangles = np.unique(triangles[keep(vertices[triangles].mean(axis=1))], return_inverse=True)
+            vertices, triangles = vertices[used], triangles.reshape(-1, 3)
         e1, e2 = vertices[triangles[:, 1]] - vertices[triangles[:, 0]], vertices[triangles[:, 2]] - vertices[triangles[:, 0]]
         meshes.append((vertices, triangles))
         areas.append(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1))
