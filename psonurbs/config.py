@@ -271,8 +271,9 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
           "its search may use (`auto`, the default then: no limit)", pair=True, least=1, most=1000,
           why="control points along one direction",
           also=f"at least {SPHERE_MIN_V} along v for a sphere; `auto` only with a tolerance"),
-    Field("topology", CHOICE, "open", "shape of the parameter domain (closed directions are periodic); "
-          "auto: chosen from the cloud", choices=TOPOLOGIES, option="--topology"),
+    Field("topology", CHOICE, "open", "shape of the parameter domain (closed directions periodic; a "
+          "cylinder: a tube, straight or bent); auto: chosen from the cloud", choices=TOPOLOGIES,
+          option="--topology"),
     Field("strategy", CHOICE, "hybrid", "hybrid: the swarm searches knots and weights, least squares the "
           "control points; full: the paper's space (Eq. 10)", choices=STRATEGIES,
           option="--strategy"),
