@@ -11,6 +11,7 @@ Every seam (u = 0 = 1) is put in the middle of the widest gap of the data's angl
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from psonurbs.fitting.prepare.organise import local_normals
 
@@ -51,6 +52,9 @@ STRAY_SHARE = 0.005  # share of a cloud that may be strays when its extent is ju
 PROLATE = 1.25  # a cloud this much longer than wide has its poles at its ends
 TUBE_GAP = 0.25  # a bent tube's data go round its section and leave this share of its arc's circle empty
 TUBE_FIT = 0.1  # ... and lie within this share of its radius of it (RMS)
+BENT_SHARE = 0.5  # a bent tube's model must halve the straight one's distance to be taken
+TORUS_SAMPLE = 2000  # points a torus is fitted to (a regular thinning of more)
+TORUS_STEPS = 60  # evaluations of its distances, at most, from each start
 
 
 def largest_gap(turns: np.ndarray, strays: float = STRAY_SHARE) -> tuple[float, float]:
@@ -78,12 +82,13 @@ def cylinder_axis(points: np.ndarray) -> np.ndarray:
 
 
 def parametrise_cylinder(points: np.ndarray) -> Parametrisation:
-    """A tube's parameters: those of a straight one (:func:`parametrise_straight_tube`)
-    or of a bent one (:func:`parametrise_bent_tube`), whichever model lies closer to
-    the points (N, 3)."""
+    """A tube's parameters: those of a bent one (:func:`parametrise_bent_tube`) where it
+    lies at most ``BENT_SHARE`` as far from the points (N, 3) as the straight one
+    (:func:`parametrise_straight_tube`, RMS), else the straight one's: a torus has two
+    more parameters and reaches any straight tube as its radius A grows."""
     straight = parametrise_straight_tube(points)
     bent = parametrise_bent_tube(points)
-    return bent if bent.info["model_rms"] < straight.info["model_rms"] else straight
+    return bent if bent.info["model_rms"] < BENT_SHARE * straight.info["model_rms"] else straight
 
 
 def parametrise_straight_tube(points: np.ndarray) -> Parametrisation:
@@ -119,36 +124,78 @@ def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centroid + scale * np.cross(a, m), a
 
 
+def torus_distances(x: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Signed distances (N,) of the points (N, 3) from the torus x = (centre (3), the
+    axis's polar and azimuthal angles, A, B): |(rho - A, z)| - B, with z the height along
+    the axis and rho the distance from it."""
+    polar, azimuth = x[3], x[4]
+    axis = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    d = points - x[:3]
+    z = d @ axis
+    rho = np.linalg.norm(d - np.outer(z, axis), axis=1)
+    return np.hypot(rho - x[5], z) - x[6]
+
+
+def fitted_torus(points: np.ndarray, starts: list[tuple[np.ndarray, np.ndarray]]):
+    """The torus nearest the points (N, 3) in the least-squares sense, from each start
+    (a point on the axis, its direction): there, in the half-plane of rho and z, the
+    section's circle (least squares: centre (A, z_0), radius B), then the geometric
+    distances (:func:`torus_distances`) minimised over all seven parameters (Levenberg-
+    Marquardt-like, on at most ``TORUS_SAMPLE`` points). (centre, axis, A, B, rms) of
+    the best, or None when no start gives a tube (0 < B < A)."""
+    sample = points[:: max(1, len(points) // TORUS_SAMPLE)]
+    scale = max(float(np.sqrt(np.mean(np.sum((sample - sample.mean(axis=0)) ** 2, axis=1)))), 1e-300)
+    best = None
+    for origin, axis in starts:
+        frame = frame_around(axis)
+        local = (sample - origin) @ frame.T
+        (major, height), minor = fit_circle(np.column_stack([np.hypot(local[:, 0], local[:, 1]), local[:, 2]]))
+        if not 0.0 < minor < major:
+            continue
+        a = frame[2]
+        start = np.r_[origin + height * a, np.arccos(np.clip(a[2], -1.0, 1.0)), np.arctan2(a[1], a[0]), major, minor]
+        found = least_squares(torus_distances, start, args=(sample,), max_nfev=TORUS_STEPS,
+                              x_scale=np.r_[scale, scale, scale, 1.0, 1.0, scale, scale])
+        rms = float(np.sqrt(np.mean(found.fun ** 2)))
+        if best is None or rms < best[-1]:
+            polar, azimuth = found.x[3:5]
+            axis = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+            best = (found.x[:3], axis, float(found.x[5]), float(abs(found.x[6])), rms)
+    return best
+
+
 def parametrise_bent_tube(points: np.ndarray) -> Parametrisation:
     """A tube bent along a circular arc (an elbow, a handle), the torus's tube over part
-    of its circle. Its axis is the line its normals meet (:func:`normal_lines_axis`); in
-    the half-plane of (rho, z), the distance from the axis and the height along it, the
-    tube's section is a circle: centre (A, z_0), radius B (least squares). u: angle
-    around the tube (seam in its widest gap), v: angle along the arc, over the arc the
-    data cover (0 .. 1); ``model_rms``: the points' RMS distance from the torus. Data
-    that do not go round the section (a gap wider than ``TUBE_GAP`` there: a vase's
-    profile, a bowl), whose arc closes (no gap along it that wide: a torus), whose
-    section reaches the axis (B >= A) or that lie farther from the torus than
-    ``TUBE_FIT`` of its tube's radius (RMS: a folded sheet) are no bent tube (an
+    of its circle (:func:`fitted_torus`, started from the line its normals meet,
+    :func:`normal_lines_axis`, and from the normal of the points' thinnest principal
+    plane). u: angle around the tube (seam in its widest gap), v: angle along the arc,
+    over the arc the data cover (0 .. 1); ``model_rms``: the points' RMS distance from
+    the torus. Data that do not go round the section (a gap wider than ``TUBE_GAP``
+    there: a vase's profile, a bowl), whose arc closes (no gap along it that wide: a
+    torus), whose section reaches the axis (B >= A) or that lie farther from the torus
+    than ``TUBE_FIT`` of its tube's radius (RMS: a folded sheet) are no bent tube (an
     infinite RMS)."""
-    origin, axis = normal_lines_axis(points)
+    centroid = points.mean(axis=0)
+    thinnest = np.linalg.svd(points - centroid, full_matrices=False)[2][2]
+    torus = fitted_torus(points, [normal_lines_axis(points), (centroid, thinnest)])
+    if torus is None:
+        return Parametrisation(np.zeros((len(points), 2)), {"method": "bent tube", "model_rms": np.inf})
+    centre, axis, major, minor, _ = torus
     frame = frame_around(axis)
-    local = (points - origin) @ frame.T
+    local = (points - centre) @ frame.T
     rho = np.hypot(local[:, 0], local[:, 1])
-    (major, height), minor = fit_circle(np.column_stack([rho, local[:, 2]]))
-    d = np.hypot(rho - major, local[:, 2] - height)
     along = turn_fraction(local[:, 0], local[:, 1])
     gap, middle = largest_gap(along)
     along = np.mod(along - middle, 1.0)  # the data's arc now runs from past 0 to short of 1
     low, high = along.min(), along.max()
     v = (along - low) / max(high - low, 1e-300)
-    u, tube_gap = seam_at_gap(turn_fraction(rho - major, local[:, 2] - height))
-    rms = float(np.sqrt(np.mean((d - minor) ** 2)))
-    tube = gap > TUBE_GAP and tube_gap <= TUBE_GAP and 0 < minor < major and rms < TUBE_FIT * minor
+    u, tube_gap = seam_at_gap(turn_fraction(rho - major, local[:, 2]))
+    rms = float(np.sqrt(np.mean((np.hypot(rho - major, local[:, 2]) - minor) ** 2)))
+    tube = gap > TUBE_GAP and tube_gap <= TUBE_GAP and minor < major and rms < TUBE_FIT * minor
     return Parametrisation(np.column_stack([u, v]), {
-        "method": "bent tube", "axis": [float(c) for c in frame[2]],
-        "centre": [float(c) for c in origin + height * frame[2]], "major_radius": float(major),
-        "radius": float(minor), "angular_gap": tube_gap, "arc": float(1.0 - gap), "model_rms": rms if tube else np.inf})
+        "method": "bent tube", "axis": [float(c) for c in axis], "centre": [float(c) for c in centre],
+        "major_radius": major, "radius": minor, "angular_gap": tube_gap, "arc": float(1.0 - gap),
+        "model_rms": rms if tube else np.inf})
 
 
 def sphere_axis(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
