@@ -106,12 +106,13 @@ def parametrise_straight_tube(points: np.ndarray) -> Parametrisation:
         "angular_gap": gap, "model_rms": rms})
 
 
-def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The line (a point on it, unit direction) that the points' normal lines meet most
     nearly: every normal of a surface of revolution meets its axis. A line with
     direction a and moment m meets the normal line through p_i along n_i when
     a . (p_i x n_i) + m . n_i = 0; (a, m) is the least singular vector of those rows
-    (N, 6), the points centred and scaled to unit spread first."""
+    (N, 6), the points centred and scaled to unit spread first. None when that line lies
+    at infinity (a ~ 0: parallel normals, a plane)."""
     sample = points[:: max(1, len(points) // 4000)]
     normals = local_normals(sample)
     centroid = sample.mean(axis=0)
@@ -119,7 +120,9 @@ def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q = (sample - centroid) / scale
     rows = np.hstack([np.cross(q, normals), normals])
     a, m = np.linalg.svd(rows, full_matrices=False)[2][-1].reshape(2, 3)
-    length = max(float(np.linalg.norm(a)), 1e-300)
+    length = float(np.linalg.norm(a))
+    if not length > 1e-6:
+        return None
     a, m = a / length, m / length
     return centroid + scale * np.cross(a, m), a
 
@@ -177,7 +180,8 @@ def parametrise_bent_tube(points: np.ndarray) -> Parametrisation:
     infinite RMS)."""
     centroid = points.mean(axis=0)
     thinnest = np.linalg.svd(points - centroid, full_matrices=False)[2][2]
-    torus = fitted_torus(points, [normal_lines_axis(points), (centroid, thinnest)])
+    starts = [start for start in (normal_lines_axis(points), (centroid, thinnest)) if start is not None]
+    torus = fitted_torus(points, starts)
     if torus is None:
         return Parametrisation(np.zeros((len(points), 2)), {"method": "bent tube", "model_rms": np.inf})
     centre, axis, major, minor, _ = torus
