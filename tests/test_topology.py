@@ -296,6 +296,15 @@ def test_a_straight_tube_a_ring_and_a_folded_sheet_are_no_bent_tube():
     assert parametrise_cylinder(s_fold).info["method"] == "cylinder"
 
 
+@pytest.mark.filterwarnings("error")
+def test_a_plane_or_repeated_points_are_no_tube_and_raise_nothing():
+    """Parallel normals meet no line: the bent tube's first start is skipped, not divided by zero."""
+    rng = np.random.default_rng(14)
+    for pts in (np.column_stack([rng.random((500, 2)), np.zeros(500)]), np.repeat(rng.random((5, 3)), 100, axis=0)):
+        par = parametrise_cylinder(pts)
+        assert par.info["method"] == "cylinder" and np.isfinite(par.uv).all()
+
+
 def test_parametrise_sphere_recovers_centre_and_radius():
     pts = sphere_cloud(centre=(0.3, -1.0, 2.0), radius=1.3)
     par = parametrise_sphere(pts)
