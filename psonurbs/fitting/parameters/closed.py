@@ -43,6 +43,16 @@ def frame_around(axis: np.ndarray) -> np.ndarray:
     return np.stack([e1, e2, axis])
 
 
+def spread(points: np.ndarray) -> float:
+    """The points' (N, 3) RMS distance from their centroid (a scale, never 0)."""
+    return max(float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))), 1e-300)
+
+
+def direction(polar: float, azimuth: float) -> np.ndarray:
+    """The unit vector (3,) at these spherical angles."""
+    return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+
+
 def turn_fraction(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Angle of (x, y) as a fraction of a full turn, in [0, 1)."""
     return np.mod(np.arctan2(y, x) / (2.0 * np.pi), 1.0)
@@ -115,8 +125,7 @@ def normal_lines_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | Non
     at infinity (a ~ 0: parallel normals, a plane)."""
     sample = points[:: max(1, len(points) // 4000)]
     normals = local_normals(sample)
-    centroid = sample.mean(axis=0)
-    scale = max(float(np.sqrt(np.mean(np.sum((sample - centroid) ** 2, axis=1)))), 1e-300)
+    centroid, scale = sample.mean(axis=0), spread(sample)
     q = (sample - centroid) / scale
     rows = np.hstack([np.cross(q, normals), normals])
     a, m = np.linalg.svd(rows, full_matrices=False)[2][-1].reshape(2, 3)
@@ -131,15 +140,15 @@ def torus_distances(x: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Signed distances (N,) of the points (N, 3) from the torus x = (centre (3), the
     axis's polar and azimuthal angles, A, B): |(rho - A, z)| - B, with z the height along
     the axis and rho the distance from it."""
-    polar, azimuth = x[3], x[4]
-    axis = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    axis = direction(x[3], x[4])
     d = points - x[:3]
     z = d @ axis
     rho = np.linalg.norm(d - np.outer(z, axis), axis=1)
     return np.hypot(rho - x[5], z) - x[6]
 
 
-def fitted_torus(points: np.ndarray, starts: list[tuple[np.ndarray, np.ndarray]]):
+def fitted_torus(points: np.ndarray, starts: list[tuple[np.ndarray, np.ndarray]]
+                 ) -> tuple[np.ndarray, np.ndarray, float, float, float] | None:
     """The torus nearest the points (N, 3) in the least-squares sense, from each start
     (a point on the axis, its direction): there, in the half-plane of rho and z, the
     section's circle (least squares: centre (A, z_0), radius B), then the geometric
@@ -147,7 +156,7 @@ def fitted_torus(points: np.ndarray, starts: list[tuple[np.ndarray, np.ndarray]]
     Marquardt-like, on at most ``TORUS_SAMPLE`` points). (centre, axis, A, B, rms) of
     the best, or None when no start gives a tube (0 < B < A)."""
     sample = points[:: max(1, len(points) // TORUS_SAMPLE)]
-    scale = max(float(np.sqrt(np.mean(np.sum((sample - sample.mean(axis=0)) ** 2, axis=1)))), 1e-300)
+    scale = spread(sample)
     best = None
     for origin, axis in starts:
         frame = frame_around(axis)
@@ -161,9 +170,7 @@ def fitted_torus(points: np.ndarray, starts: list[tuple[np.ndarray, np.ndarray]]
                               x_scale=np.r_[scale, scale, scale, 1.0, 1.0, scale, scale])
         rms = float(np.sqrt(np.mean(found.fun ** 2)))
         if best is None or rms < best[-1]:
-            polar, azimuth = found.x[3:5]
-            axis = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
-            best = (found.x[:3], axis, float(found.x[5]), float(abs(found.x[6])), rms)
+            best = (found.x[:3], direction(*found.x[3:5]), float(found.x[5]), float(abs(found.x[6])), rms)
     return best
 
 
