@@ -202,6 +202,22 @@ def elbow_cloud(n=1500, seed=0, major=1.0, minor=0.25, arc=0.5 * np.pi, noise=5e
     return rot.apply(pts) + np.asarray(centre), a, b
 
 
+def s_bend_cloud(n=3000, seed=0, radius=0.2, noise=5e-4):
+    """A tube of the given radius swept along the S curve (t, 0.5 sin(pi t), 0), t in
+    0 .. 2, area-uniform with Gaussian noise; also each point's t and angle around it."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 2.0, 4001)
+    centre = np.column_stack([t, 0.5 * np.sin(np.pi * t), np.zeros_like(t)])
+    tangent = np.gradient(centre, axis=0)
+    step = np.linalg.norm(tangent, axis=1)
+    tangent /= step[:, None]
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0], np.zeros_like(t)])
+    binormal = np.cross(tangent, normal)
+    pick, around = rng.choice(len(t), n, p=step / step.sum()), rng.uniform(0, 2 * np.pi, n)
+    pts = centre[pick] + radius * (np.cos(around)[:, None] * normal[pick] + np.sin(around)[:, None] * binormal[pick])
+    return pts + noise * rng.standard_normal(pts.shape), t[pick], around
+
+
 def capsule_cloud(n=1500, seed=0, radius=0.4, length=1.2, rotation=None):
     """A cylinder with hemispherical ends, uniform over its area: closed, prolate, no crease."""
     rng = np.random.default_rng(seed)
@@ -275,6 +291,23 @@ def test_a_bent_tube_is_parametrised_by_its_angles(arc):
     # u turns with the angle around the tube, one way or the other, from its seam
     turn = np.exp(2j * np.pi * par.uv[:, 0])
     assert max(abs(np.mean(turn * np.exp(1j * around))), abs(np.mean(turn * np.exp(-1j * around)))) > 0.999
+    assert unsupported(par, pts, "cylinder") is None
+
+
+@pytest.mark.parametrize("seed, n", [(0, 3000), (1, 800)])
+def test_a_tube_swept_along_an_s_bend_is_parametrised_along_its_centreline(seed, n):
+    """No arc carries an S bend: its centreline comes from the sections' centres, ordered
+    along the tube; u turns round it, v runs along it."""
+    rot = Rotation.from_euler("zyx", [-30, 45, 10], degrees=True)
+    pts, along, around = s_bend_cloud(n=n, seed=seed)
+    pts = rot.apply(pts)
+    par = parametrise_cylinder(pts)
+    assert par.info["method"] == "swept tube"
+    assert par.info["radius"] == pytest.approx(0.2, rel=0.02)
+    assert par.uv.min() >= 0 and par.uv.max() <= 1
+    assert abs(np.corrcoef(par.uv[:, 1], along)[0, 1]) > 0.995
+    turn = np.exp(2j * np.pi * par.uv[:, 0])
+    assert max(abs(np.mean(turn * np.exp(1j * around))), abs(np.mean(turn * np.exp(-1j * around)))) > 0.99
     assert unsupported(par, pts, "cylinder") is None
 
 
@@ -392,6 +425,7 @@ def test_a_few_strays_neither_close_a_gap_nor_reach_a_pole():
     ("torus", lambda: torus_cloud(n=500, seed=8, rotation=Rotation.from_euler("y", 35, degrees=True))),
     ("sphere", lambda: capsule_cloud(seed=10, rotation=Rotation.from_euler("xz", [30, 60], degrees=True))),
     ("cylinder", lambda: elbow_cloud(n=800, seed=11, rotation=Rotation.from_euler("xy", [50, 20], degrees=True))[0]),
+    ("cylinder", lambda: s_bend_cloud(n=1500, seed=12)[0]),
 ])
 def test_choose_topology(expected, cloud):
     pts = cloud()

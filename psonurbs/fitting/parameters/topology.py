@@ -107,7 +107,8 @@ def without_edge(points: np.ndarray) -> str | None:
 def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
     """Why the cloud cannot carry this closed topology's parametrisation (None if it can)."""
     info = par.info
-    if topology in ("cylinder", "torus") and on_axis(points, np.asarray(info["axis"]), info.get("centre")):
+    if topology in ("cylinder", "torus") and "axis" in info and on_axis(points, np.asarray(info["axis"]),
+                                                                       info.get("centre")):
         return "the data reach its axis (an end closes there, no hole through it)"
     gaps = info.get("angular_gaps") or ([info["angular_gap"]] if "angular_gap" in info else [])
     for name, gap in zip(("around the axis", "around the tube"), gaps):
