@@ -242,6 +242,18 @@ def elbow(u, v):
     return xyz(ring * np.cos(along), ring * np.sin(along), 0.3 * np.sin(around))
 
 
+def s_bend(u, v):
+    """A tube of radius 0.15 swept along the S curve (2 t, 0.5 sin(2 pi t), 0), t in 0 .. 1
+    (no arc: two bends the other way round); u around the tube, v along it (the curve's
+    parameter, not its arc length)."""
+    t, around = v, TAU * u
+    centre = xyz(2.0 * t, 0.5 * np.sin(TAU * t), 0.0 * t)
+    tangent = xyz(2.0 + 0.0 * t, np.pi * np.cos(TAU * t), 0.0 * t)
+    tangent /= np.linalg.norm(tangent, axis=-1, keepdims=True)
+    normal = np.stack([-tangent[..., 1], tangent[..., 0], 0.0 * t], -1)
+    return centre + 0.15 * (np.cos(around)[..., None] * normal + np.sin(around)[..., None] * xyz(0.0 * t, 0.0 * t, 1.0 + 0.0 * t))
+
+
 def curl(u, v):
     """250 degrees of a cylinder: no plane sees it as a height field."""
     angle = np.radians(-35.0) + np.radians(250.0) * u
@@ -622,6 +634,8 @@ def feature_cases() -> list[Case]:
         case("vase", vase, scattered(4000), (10, 6), "a vase (radius varying with height), closed in u",
              noise=0.001, topology="cylinder"),
         case("elbow", elbow, scattered(4000), (8, 6), "a pipe elbow: a tube bent along 120 degrees, closed in u",
+             noise=0.001, topology="cylinder"),
+        case("s_bend", s_bend, scattered(4000), (8, 10), "a tube swept along an S curve (no arc), closed in u",
              noise=0.001, topology="cylinder"),
         case("sphere_sparse", sphere((0.3, -0.2, 0.1), 1.2), equal_area_sphere(900), (8, 6),
              "900 points on a sphere, noise", noise=0.002, topology="sphere"),
