@@ -384,9 +384,10 @@ def parametrise_swept_tube(points: np.ndarray) -> Parametrisation:
     position = grid[near]
     v = (position - position.min()) / max(float(np.ptp(position)), 1e-300)
     tube = gap <= TUBE_GAP and rms < TUBE_FIT * radius
+    first_sample, last_sample = near[np.argmin(position)], near[np.argmax(position)]
     return Parametrisation(np.column_stack([u, v]), {
         "method": "swept tube", "radius": radius, "angular_gap": gap,
-        "length": float(np.sum(np.linalg.norm(np.diff(curve, axis=0), axis=1)) * np.ptp(position) / np.ptp(grid)),
+        "length": float(np.sum(np.linalg.norm(np.diff(curve[first_sample:last_sample + 1], axis=0), axis=1))),
         "model_rms": rms if tube else np.inf})
 
 
