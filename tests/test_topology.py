@@ -7,15 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from psonurbs.config import config_from_dict
-from psonurbs.fitting.parameters.closed import (
-    STRAY_SHARE,
-    parametrise_bent_tube,
-    parametrise_cylinder,
-    parametrise_sphere,
-    parametrise_torus,
-)
+from psonurbs.fitting.parameters.closed import STRAY_SHARE, parametrise_sphere, parametrise_torus
 from psonurbs.fitting.parameters.plane import parametrise_open
 from psonurbs.fitting.parameters.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
+from psonurbs.fitting.parameters.tubes import parametrise_bent_tube, parametrise_cylinder
 from psonurbs.geometry.net import NetLayout
 
 CLOSED = {

@@ -34,6 +34,17 @@ def plane_basis(normal: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(normal, e1)])
 
 
+def plane_bases(normals: np.ndarray) -> np.ndarray:
+    """(N, 2, 3): :func:`plane_basis` for N directions (N, 3) at once, by the same rule
+    (the first vector orthogonal to the coordinate axis the direction leans on least).
+    plane_basis keeps its scalar operations: the fits depend on their last bits."""
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    e1 = np.cross(normals, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return np.stack([e1, np.cross(normals, e1)], axis=1)
+
+
 def min_area_rectangle(q: np.ndarray) -> np.ndarray:
     """2 x 2 rotation whose rows are the sides of the smallest rectangle around ``q``.
 

@@ -29,11 +29,12 @@ from psonurbs.fitting.prepare.organise import normals_and_variation
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
 
-from .closed import parametrise_cylinder, parametrise_sphere, parametrise_torus
+from .closed import parametrise_sphere, parametrise_torus
 from .coarse_to_fine import coarse_to_fine
 from .open_patch import parametrise_open_patch
 from .parametrisation import Parametrisation
 from .plane import parametrise_open
+from .tubes import parametrise_cylinder
 
 LAYOUTS = {  # closed (u, v), poles
     "open": ((False, False), False),
