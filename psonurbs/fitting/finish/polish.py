@@ -14,39 +14,20 @@ from psonurbs.geometry.net import NetShape
 from psonurbs.geometry.projection import closest_parameters, keep_in_domain
 
 from .footprint import ALPHA
+from .straight_edges import straight_line
 
-SAG = 2.0  # a straight edge's lowest points sag from their chord by at most this many scatters
 
-
-def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = 8) -> np.ndarray:
-    """A straight line ``across = a + b * along`` along the data's edge, evaluated at
-    every point: the least-squares line through the lowest (or highest) ``across``
-    value in each of ``bins`` slices of ``along``.
-
-    A straight edge's points lie beyond that line by no more than their sampling
-    ``scatter``, and its lowest points do not bend: the parabola through them sags from
-    its chord by at most ``SAG`` times the scatter (a random or graded sample's sags up
-    to 1.5 times, a disc's of 500 points 2.3 times and more as it grows, while its points
-    lie only 1.4-2.7 spacings past the line). If some reach farther, or the lowest
-    points bend, the edge is not straight (an ellipse's bends away from the line, a
-    scan's is ragged): it has no line to follow, and the edge is the data's extreme,
-    ``across`` constant. Put on a line, a disc's parameters are squeezed onto the
+def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float) -> np.ndarray:
+    """The data's lower (or ``upper``) edge ``across`` as a function of ``along``, at every
+    point: its straight line (:func:`straight_line`) or, if it is not straight, the data's
+    extreme, ``across`` constant. Put on a line, a disc's parameters are squeezed onto the
     square: a small net folds over its own plane there, and no face can be extended
-    past such an edge.
-    """
-    slices = np.minimum((along * bins).astype(int), bins - 1)
-    order = np.lexsort((-across if upper else across, slices))
-    first = order[np.r_[True, slices[order][1:] != slices[order][:-1]]]
-    if len(first) < 2:
-        return np.full(len(along), across[first].mean())
-    b, a = np.polyfit(along[first], across[first], 1)
-    line = a + b * along
-    beyond = float(np.max(across - line) if upper else np.max(line - across))
-    sag = 0.0
-    if len(first) >= 4:  # the parabola's sag over the edge's length: |c| L^2 / 4
-        sag = abs(np.polyfit(along[first], across[first], 2)[0]) * np.ptp(along) ** 2 / 4.0
-    straight = beyond <= scatter and sag <= SAG * scatter
-    return line if straight else np.full(len(along), across.max() if upper else across.min())
+    past such an edge."""
+    line = straight_line(along, across, upper, scatter)
+    if line is None:
+        return np.full(len(along), across.max() if upper else across.min())
+    a, b = line
+    return a + b * along
 
 
 def align_to_domain(uv: np.ndarray, layout, support: bool = True) -> np.ndarray:
