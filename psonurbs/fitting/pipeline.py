@@ -198,7 +198,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         uv, dist = closest_parameters(surface, in_frame) if big is None else \
             every_foot_point(surface, in_frame, cloud.source, done.uv)
         face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False,
-                         doubted_points(cloud.neighbourhoods, cloud.source))
+                         doubted_points(cloud.neighbourhoods, cloud.source),
+                         par.info.get("normal") if par.info.get("method") == "plane" else None)
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
         checks = check_fit(surface, cloud.points, trim=face.trim)

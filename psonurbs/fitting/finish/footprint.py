@@ -55,6 +55,11 @@ is twice as deep). Both are measured on the surface (:func:`widest_gap`), so a s
 of stretched surface past the data counts however thin it is in the domain; a cloud that
 fills its rectangle leaves only sampling gaps along the edges. ``true`` always; ``false``
 never.
+
+An open patch projected on a plane has the data's straight edges in it
+(:mod:`psonurbs.fitting.finish.straight_edges`): every loop keeps within the margin (on
+the surface) of them, and where ``trim: auto`` finds no gap but the surface runs past
+one by more than the margin, the face is the whole domain cut there.
 """
 from __future__ import annotations
 
@@ -80,6 +85,8 @@ from psonurbs.geometry.trim import (
     polygon_loop,
     signed_area,
 )
+
+from .straight_edges import straight_edges
 
 NEIGHBOURS = 16
 ALPHA = 2.5
@@ -213,6 +220,7 @@ class Contours:
     tolerance: np.ndarray  # (2,) half the margin, in u and v
     widest_gap: float  # the widest empty disc outside the face, in spacings of the data beside it (gap_scale)
     edge_overrun: float  # how far the surface's edges run past the data along a stretch, in spacings
+    cut: list[np.ndarray] | None = None  # the domain's contours less the surface past a straight edge of the data
 
     def reach(self) -> np.ndarray:
         """How far (u below 0, v below 0, u above 1, v above 1) the contours run past the domain."""
@@ -221,8 +229,10 @@ class Contours:
 
 
 def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                  doubted: np.ndarray | None = None) -> Contours | None:
-    """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint)."""
+                  doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None) -> Contours | None:
+    """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint);
+    ``seen_along`` (3,): the normal of the plane an open patch was projected on, whose
+    straight edges of the data the face does not cross (:func:`past_straight_edges`)."""
     scale = mean_speeds(surface)
     marks = marks_the_data(distances, uv, scale)
     good = np.flatnonzero(marks if doubted is None else marks & ~doubted)
@@ -259,31 +269,78 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
-    if subsampled:  # and every point on the face, joined to the drawn point of its piece
-        mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
-    rejoined(mask, every[face_points] if subsampled else x[face_drawn], xs[0], ys[0], cell)
-    field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
-    field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
-    field[[0, -1], :] = field[:, [0, -1]] = np.inf
-    # the widest gap on the surface outside the face: a real gap, or sampling?
+    past = past_straight_edges(surface, points[good], seen_along, xs, ys, scale) if seen_along is not None else None
+    reach = MARGIN * float(np.median(data_spacing))  # the loops' margin on the surface
+    on_face = every[face_points] if subsampled else x[face_drawn]
+
+    def field_of(mask: np.ndarray) -> np.ndarray:
+        """The signed distance to the face's cells (mask, with every point of the face
+        joined to it), less the loops' margin: the loops are its zero contour; and past a
+        straight edge of the data, no farther than that margin on the surface (the raster's
+        margin is one at the mean speeds, wider where an edge is stretched)."""
+        if subsampled:  # every point on the face, joined to the drawn point of its piece
+            mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
+        rejoined(mask, on_face, xs[0], ys[0], cell)
+        field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+        field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
+        if past is not None:
+            field = np.maximum(field, past - reach)
+        field[[0, -1], :] = field[:, [0, -1]] = np.inf
+        return field
+
+    field = field_of(mask)
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
+    cut = None  # the whole domain less the surface past a straight edge, where it runs past one
+    if past is not None and np.any(past[in_domain] > reach):
+        cut = outlines(field_of(in_domain.copy()), xs, ys, scale, spacing)
+    # the widest gap on the surface outside the face: a real gap, or sampling?
     empty = np.argwhere(in_domain & (field > 0.0))
     rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
     gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
                      np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, data, data_spacing) \
         if len(empty) and len(rim) else 0.0
     overrun = edge_overrun(surface, data, data_spacing)
-    polygons = [p / scale for p in contours(field, xs, ys, 0.0)]
-    polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
+    polygons = outlines(field, xs, ys, scale, spacing)
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
         return None
+    return Contours(polygons, good[face_points], int(np.sum(piece_area > 0) - 1),
+                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap, overrun, cut or None)
+
+
+def outlines(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarray, spacing: np.ndarray
+             ) -> list[np.ndarray]:
+    """The zero contours of the face's field (len(xs), len(ys)) in the domain: the outer
+    one first, then the holes; a hole smaller than a disc of the alpha scale (``ALPHA``
+    median ``spacing``) is a sampling gap (a sliver of wide circumcircle in a random
+    sample), not a gap in the data: the face covers it. Empty for a face finer than the
+    raster."""
+    polygons = [p / scale for p in contours(field, xs, ys, 0.0)]
+    polygons = [p for p in polygons if len(p) >= 3 and abs(signed_area(p)) > 0]
+    if not polygons:
+        return []
     outer = int(np.argmax([signed_area(p) for p in polygons]))
-    # a hole smaller than a disc of the alpha scale is a sampling gap (a sliver of wide
-    # circumcircle in a random sample), not a gap in the data: the face covers it
     smallest = np.pi * (ALPHA * float(np.median(spacing))) ** 2
-    holes = [p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest]
-    return Contours([polygons[outer], *holes], good[face_points], int(np.sum(piece_area > 0) - 1),
-                    int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap, overrun)
+    return [polygons[outer], *(p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest)]
+
+
+def past_straight_edges(surface: NurbsSurface, points: np.ndarray, normal: np.ndarray, xs: np.ndarray,
+                        ys: np.ndarray, scale: np.ndarray, n: int = AREA_GRID) -> np.ndarray | None:
+    """How far the surface at each cell of the raster (len(xs), len(ys); the domain at the
+    mean speeds ``scale``) lies past the straight edges of the points (N, 3) seen along
+    ``normal`` (:mod:`psonurbs.fitting.finish.straight_edges`), in cloud units (negative
+    inside them): the surface on an n x n grid over the domain, interpolated linearly
+    (cells outside the domain take its edge's). None where the data have no straight edge."""
+    edges = straight_edges(points, normal, ALPHA)
+    if edges is None:
+        return None
+    us, vs = surface.parameter_grid(n, n)
+    uu, vv = np.meshgrid(us, vs, indexing="ij")
+    past = edges.beyond(surface.evaluate(uu.ravel(), vv.ravel())).reshape(n, n)
+    (u0, u1), (v0, v1) = surface.domain_u, surface.domain_v
+    iu = (np.clip(xs / scale[0], 0.0, 1.0) * (u1 - u0) + u0 - us[0]) / (us[-1] - us[0]) * (n - 1)
+    iv = (np.clip(ys / scale[1], 0.0, 1.0) * (v1 - v0) + v0 - vs[0]) / (vs[-1] - vs[0]) * (n - 1)
+    ii, jj = np.meshgrid(iu, iv, indexing="ij")
+    return ndimage.map_coordinates(past, [ii, jj], order=1, mode="nearest")
 
 
 def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np.ndarray, xs: np.ndarray,
@@ -541,22 +598,30 @@ def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndar
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-              mode: str | bool, doubted: np.ndarray | None = None) -> Footprint:
+              mode: str | bool, doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None
+              ) -> Footprint:
     """The trim of an open fit from its points (N, 3), their foot-point parameters uv
     (N, 2) and distances (N,), and the points' distances to the trimmed surface;
     ``doubted`` (N,) bool: the points the robust stage doubts (local outliers, junk joined
-    to the surface from beyond its neighbours' reach), which mark no data."""
+    to the surface from beyond its neighbours' reach), which mark no data; ``seen_along``
+    (3,): the normal of the plane the patch was projected on (its data's straight edges
+    bound the face, :func:`past_straight_edges`). Where ``trim: auto`` finds no gap but
+    the surface runs past a straight edge by more than the loops' margin, the face is
+    the whole domain cut there."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if mode is False or len(uv) < 4:
         return whole
-    found = face_contours(surface, points, uv, distances, doubted)
+    found = face_contours(surface, points, uv, distances, doubted, seen_along)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
+    polygons = found.polygons
     if mode == "auto" and found.widest_gap < ALPHA and found.edge_overrun <= EDGE_OVERRUN and len(found.polygons) == 1:
-        return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
-                         found.spacing)
+        if found.cut is None:
+            return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
+                             found.spacing)
+        polygons = found.cut
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
-    loops = fitted_loops(found.polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
+    loops = fitted_loops(polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
     trim = Trim(tuple(loops))
     empty = empty_share(surface, trim)
     outside = ~trim.contains(uv)
