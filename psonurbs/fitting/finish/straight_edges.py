@@ -33,7 +33,12 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
     in each of ``bins`` slices of ``along`` (in [0, 1]). With the points' ``height`` (N,)
     off the plane of ``along`` and ``across``, the plane ``across = a + b along + c
     height`` (a, b, c): an edge cut by a plane the view is not square to (a tilted view
-    of a height field cut along x = 1 sees the cut's heights as a ragged line).
+    of a height field cut along x = 1 sees the cut's heights as a ragged line); each
+    slice's outermost point then weighs by the square of its slice's count (the
+    outermost of n points lies about 1/n of the slice's depth short of the true edge), so
+    that the sparse end of a graded edge, its outermost points farther in, does not tilt
+    the plane (moved out to the outermost point, it would stand off the dense end). The
+    parameters' alignment, which needs only the data's extent, takes the plain line.
 
     A straight edge's points lie beyond that line by no more than their sampling
     ``scatter``, and its lowest points do not bend: the parabola through them sags from
@@ -53,8 +58,9 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
         b, a = np.polyfit(along[first], across[first], 1)
         c = 0.0
     else:
+        w = np.bincount(slices, minlength=bins)[slices[first]].astype(float)  # by inverse variance
         rows = np.column_stack([np.ones(len(first)), along[first], height[first]])
-        a, b, c = np.linalg.lstsq(rows, across[first], rcond=None)[0]
+        a, b, c = np.linalg.lstsq(rows * w[:, None], across[first] * w, rcond=None)[0]
     flat = across - c * height if height is not None else across  # across, the cut's tilt taken out
     line = a + b * along
     beyond = float(np.max(flat - line) if upper else np.max(line - flat))
