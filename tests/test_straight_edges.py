@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from psonurbs.fitting.finish.footprint import footprint
+from psonurbs.fitting.finish.footprint import footprint, footprint_notes
 from psonurbs.fitting.finish.straight_edges import straight_edges
 from psonurbs.geometry.basis import clamped_knots
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -80,3 +80,5 @@ def test_a_corner_spreading_past_the_data_s_straight_edges_is_cut_there():
     reach = np.maximum(rim[:, 0] - points[:, 0].max(), rim[:, 1] - points[:, 1].max())
     assert reach.max() <= 0.5 * spacing  # the loop a margin past the edges, no farther
     assert face.empty_share < 0.02  # and the rest of the surface kept
+    assert face.cut and face.to_dict()["cut"] and not whole.cut
+    assert footprint_notes(face, len(points))[0].startswith("trimmed where the surface ran past the data's straight")

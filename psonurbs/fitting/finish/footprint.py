@@ -120,11 +120,12 @@ class Footprint:
     fragments: int  # pieces of the footprint left out of the face
     fragment_points: int
     spacing: float  # median spacing (of the drawn points), in the surface's (approximate) length units
+    cut: bool = False  # the face is the whole domain cut where the surface ran past the data's straight edges
 
     def to_dict(self) -> dict:
         return {"trimmed": self.trim is not None, "loops": self.loops, "empty_share": self.empty_share,
                 "points_outside": self.points_outside, "fragments": self.fragments,
-                "fragment_points": self.fragment_points, "spacing": self.spacing}
+                "fragment_points": self.fragment_points, "spacing": self.spacing, "cut": self.cut}
 
 
 def mean_speeds(surface: NurbsSurface, n: int = 33) -> np.ndarray:
@@ -614,12 +615,12 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     found = face_contours(surface, points, uv, distances, doubted, seen_along)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
-    polygons = found.polygons
+    polygons, cut = found.polygons, False
     if mode == "auto" and found.widest_gap < ALPHA and found.edge_overrun <= EDGE_OVERRUN and len(found.polygons) == 1:
         if found.cut is None:
             return Footprint(surface, None, whole.distances, 0, 0.0, 0, found.fragments, found.fragment_points,
                              found.spacing)
-        polygons = found.cut
+        polygons, cut = found.cut, True
     lo, hi = -EDGE_OUTSET, 1.0 + EDGE_OUTSET
     loops = fitted_loops(polygons, found.tolerance, ((lo, hi), (lo, hi)), uv[found.face_points])
     trim = Trim(tuple(loops))
@@ -627,7 +628,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     outside = ~trim.contains(uv)
     dist = distances_to_face(surface, trim, points, uv, distances)
     return Footprint(surface, trim, dist, len(loops), empty, int(outside.sum()), found.fragments,
-                     found.fragment_points, found.spacing)
+                     found.fragment_points, found.spacing, cut)
 
 
 def fitted_loops(polygons: list[np.ndarray], tolerance: np.ndarray, bounds, must_inside: np.ndarray
@@ -748,9 +749,11 @@ def footprint_notes(face: Footprint, n_points: int) -> list[str]:
     if face.trim is None:
         return []
     holes = face.loops - 1
-    notes = [f"trimmed to the data's footprint: {face.loops} loop{'s' if face.loops > 1 else ''} "
-             f"(the outer boundary{f' and {holes} hole' + ('s' if holes > 1 else '') if holes else ''}); "
-             f"{100 * face.empty_share:.1f}% of the untrimmed surface had no data"]
+    notes = [f"trimmed where the surface ran past the data's straight edges "
+             f"({100 * face.empty_share:.1f}% of its area cut off)"] if face.cut else \
+        [f"trimmed to the data's footprint: {face.loops} loop{'s' if face.loops > 1 else ''} "
+         f"(the outer boundary{f' and {holes} hole' + ('s' if holes > 1 else '') if holes else ''}); "
+         f"{100 * face.empty_share:.1f}% of the untrimmed surface had no data"]
     if face.points_outside:
         what = (f" ({face.fragment_points} in {face.fragments} detached piece{'s' if face.fragments > 1 else ''} "
                 "of the footprint)") if face.fragment_points else ""
