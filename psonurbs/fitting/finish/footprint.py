@@ -272,30 +272,26 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
     past = past_straight_edges(surface, points[good], seen_along, xs, ys, scale) if seen_along is not None else None
     reach = MARGIN * float(np.median(data_spacing))  # the loops' margin on the surface
-    on_face = every[face_points] if subsampled else x[face_drawn]
 
-    def field_of(mask: np.ndarray, join: bool = True) -> np.ndarray:
-        """The signed distance to the face's cells (mask, with every point of the face
-        joined to it unless ``join`` is False: the domain holds them all), less the loops'
-        margin: the loops are its zero contour; and past a straight edge of the data, no
-        farther than that margin on the surface (the raster's margin is one at the mean
-        speeds, wider where an edge is stretched)."""
-        if join and subsampled:  # every point on the face, joined to the drawn point of its piece
-            mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
-        if join:
-            rejoined(mask, on_face, xs[0], ys[0], cell)
-        field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
-        field -= local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest)
+    def bounded(field: np.ndarray) -> np.ndarray:
+        """The field held, past a straight edge of the data, within the loops' margin of it
+        on the surface (the raster's margin is one at the mean speeds, wider where an edge
+        is stretched), and closed at the raster's rim."""
         if past is not None:
             field = np.maximum(field, past - reach)
         field[[0, -1], :] = field[:, [0, -1]] = np.inf
         return field
 
-    field = field_of(mask)
+    if subsampled:  # every point on the face, joined to the drawn point of its piece
+        mark_joined(mask, every[face_points], x[face_drawn], xs[0], ys[0], cell)
+    rejoined(mask, every[face_points] if subsampled else x[face_drawn], xs[0], ys[0], cell)
+    field = np.where(mask, -ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)) * cell
+    field = bounded(field - local_margin(field, xs, ys, x[face_drawn], spacing[face_drawn], margin, widest))
     in_domain = ((xs >= 0) & (xs <= scale[0]))[:, None] & ((ys >= 0) & (ys <= scale[1]))[None, :]
     cut = None  # the whole domain less the surface past a straight edge, where it runs past one
     if past is not None and np.any(past[in_domain] > reach):
-        cut = outlines(field_of(in_domain.copy(), join=False), xs, ys, scale, spacing)
+        outside = np.maximum(np.maximum(-xs, xs - scale[0])[:, None], np.maximum(-ys, ys - scale[1])[None, :])
+        cut = outlines(bounded(outside - margin), xs, ys, scale, spacing)  # (the loops are clamped to the domain)
     # the widest gap on the surface outside the face: a real gap, or sampling?
     empty = np.argwhere(in_domain & (field > 0.0))
     rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
