@@ -11,8 +11,9 @@ every part of the surface beyond it is surface without data.
 The line is the one along which the parameters are aligned (:func:`straight_line`):
 least squares through the outermost point of each of a few slices along the edge,
 straight only if no point lies beyond it by more than the sampling scatter and the
-outermost points do not bend. Here it is moved out to the outermost point, so that no
-point of the data lies beyond it.
+outermost points do not bend. For the face it is a plane across the view (a cut seen at
+a tilt), fitted with each slice weighted by its count, and moved out to the outermost
+point, so that no point of the data lies beyond it (:func:`straight_edges`).
 """
 from __future__ import annotations
 
