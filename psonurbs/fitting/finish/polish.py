@@ -26,7 +26,7 @@ def edge_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float
     line = straight_line(along, across, upper, scatter)
     if line is None:
         return np.full(len(along), across.max() if upper else across.min())
-    a, b = line
+    a, b, _ = line
     return a + b * along
 
 

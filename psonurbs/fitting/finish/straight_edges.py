@@ -28,8 +28,8 @@ SLICES = 8  # slices along an edge, each giving its outermost point
 
 
 def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = SLICES,
-                  height: np.ndarray | None = None) -> tuple[float, ...] | None:
-    """The line ``across = a + b * along`` (a, b) of the data's edge, or None if the edge is
+                  height: np.ndarray | None = None) -> tuple[float, float, float] | None:
+    """The line ``across = a + b * along`` (a, b, 0) of the data's edge, or None if the edge is
     not straight: the least-squares line through the lowest (or highest) ``across`` value
     in each of ``bins`` slices of ``along`` (in [0, 1]). With the points' ``height`` (N,)
     off the plane of ``along`` and ``across``, the plane ``across = a + b along + c
@@ -54,7 +54,7 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
     order = np.lexsort((-across if upper else across, slices))
     first = order[np.r_[True, slices[order][1:] != slices[order][:-1]]]
     if len(first) < 2:
-        return (float(across[first].mean()), 0.0) + ((0.0,) if height is not None else ())
+        return float(across[first].mean()), 0.0, 0.0
     if height is None or len(first) < 4:
         b, a = np.polyfit(along[first], across[first], 1)
         c = 0.0
@@ -70,7 +70,7 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
         sag = abs(np.polyfit(along[first], flat[first], 2)[0]) * np.ptp(along) ** 2 / 4.0
     if beyond > scatter or sag > SAG * scatter:
         return None
-    return (float(a), float(b)) + ((float(c),) if height is not None else ())
+    return float(a), float(b), float(c)
 
 
 @dataclass(frozen=True)
