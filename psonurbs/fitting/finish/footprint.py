@@ -748,7 +748,7 @@ def footprint_notes(face: Footprint, n_points: int) -> list[str]:
         return []
     holes = face.loops - 1
     notes = [f"trimmed where the surface ran past the data's straight edges "
-             f"({100 * face.empty_share:.1f}% of its area cut off)"] if face.cut else \
+             f"({100 * face.empty_share:.2g}% of its area cut off)"] if face.cut else \
         [f"trimmed to the data's footprint: {face.loops} loop{'s' if face.loops > 1 else ''} "
          f"(the outer boundary{f' and {holes} hole' + ('s' if holes > 1 else '') if holes else ''}); "
          f"{100 * face.empty_share:.1f}% of the untrimmed surface had no data"]
