@@ -1,5 +1,7 @@
-"""A cloud's straight edges: found where a plane cut the data, seen at a tilt too; none
-on a disc; the face of a surface spreading past one ends there."""
+"""A cloud's straight edges: found where a plane cut the data, seen at a tilt too, no tilt
+read into a graded edge's scatter; none on a disc; the face of a surface spreading past
+one ends there, and a surface ending short of a graded cloud's sparse edge is carried to
+it."""
 from __future__ import annotations
 
 import numpy as np
@@ -82,3 +84,76 @@ def test_a_corner_spreading_past_the_data_s_straight_edges_is_cut_there():
     assert face.empty_share < 0.02  # and the rest of the surface kept
     assert face.cut and face.to_dict()["cut"] and not whole.cut
     assert footprint_notes(face, len(points))[0].startswith("trimmed where the surface ran past the data's straight")
+
+
+def graded_x(rng, n):
+    """x on [-1, 1] of density 0.05 + u (u = (1 + x) / 2): 21-fold sparser at x = -1."""
+    return -1.0 + 2.0 * (np.sqrt(0.0025 + 1.1 * rng.random(n)) - 0.05)
+
+
+def graded_tile(n=3000, seed=0):
+    """The wavy tile's heights on [-1, 1]^2, the density falling towards x = -1."""
+    rng = np.random.default_rng(seed)
+    x = graded_x(rng, n)
+    y = rng.uniform(-1.0, 1.0, n)
+    return np.column_stack([x, y, 0.2 * np.sin(1.5 * np.pi * y) + 0.1 * x])
+
+
+def test_a_graded_edge_seen_square_does_not_lean_with_the_heights():
+    """Seen square, the cut x = -1 of a cloud whose density falls towards it has its slices'
+    outermost points scattered by their sampling; their chance correlation with the heights
+    is not a tilt: every edge found stays the plain line (c = 0)."""
+    for seed in range(10):
+        points = graded_tile(seed=seed)
+        edges = straight_edges(points, np.array([0.0, 0.0, 1.0]), 2.5)
+        across_x = [e for e in edges.edges if abs(edges.axes[e[0]] @ [1.0, 0.0, 0.0]) > 0.9]
+        assert len(across_x) == 2  # the sparse edge and the dense one
+        assert all(c == 0.0 for *_, c in edges.edges), edges.edges
+
+
+def polynomial_patch(x0):
+    """The bicubic patch of z = 0.1 x^2 - 0.05 x y + 0.03 y^3 over [x0, 1] x [-1, 1]
+    (x and y linear in u and v: a Bezier patch whose net is the polynomial's blossoms,
+    fitted here by least squares on a grid, which holds it exactly)."""
+    from psonurbs.geometry.basis import design_matrix
+
+    def height(x, y):
+        return 0.1 * x ** 2 - 0.05 * x * y + 0.03 * y ** 3
+
+    t = np.linspace(0.0, 1.0, 12)
+    knots = clamped_knots(4, 3)
+    b = design_matrix(t, knots, 3).toarray()
+    uu, vv = np.meshgrid(t, t, indexing="ij")
+    x, y = x0 + (1.0 - x0) * uu, -1.0 + 2.0 * vv
+    grid = np.stack([x, y, height(x, y)], axis=-1)
+    pinv = np.linalg.pinv(b)
+    net = np.einsum("ia,jb,abk->ijk", pinv, pinv, grid)
+    return NurbsSurface(3, 3, knots, knots, net, np.ones((4, 4))), height
+
+
+def test_a_surface_ending_short_of_a_graded_cloud_s_sparse_edge_is_carried_to_it():
+    """The data run to x = -1, thinning 21-fold towards it; the fitted surface ends at
+    x = -0.92 (as a fit ends past a sparse end's last points). The face is the surface
+    carried past the data's straight edge and cut there: the sparse end covered to
+    within a local spacing of x = -1, every point on the face, nothing of it past the
+    data's edges."""
+    surface, height = polynomial_patch(-0.92)
+    rng = np.random.default_rng(5)
+    x = graded_x(rng, 3000)
+    y = rng.uniform(-1.0, 1.0, 3000)
+    points = np.column_stack([x, y, height(x, y)])
+    from psonurbs.geometry.projection import closest_parameters
+
+    uv, distances = closest_parameters(surface, points)
+    face = footprint(surface, points, uv, distances, "auto", seen_along=np.array([0.0, 0.0, 1.0]))
+    assert face.trim is not None and face.surface is not surface
+    assert face.points_outside == 0 and face.distances.max() < 1e-6  # every point on the (exact) face
+    rim = np.concatenate([face.surface.evaluate(*p.T) for p in face.trim.polygons()])
+    sparse = points[points[:, 0] < -0.8]
+    local = np.sqrt(np.ptp(sparse[:, 0]) * 2.0 / len(sparse))  # the sparse end's spacing
+    assert rim[:, 0].min() >= points[:, 0].min() - 0.5 * local  # the face ends at the data's edge ...
+    ys = np.linspace(-0.9, 0.9, 19)
+    left = [rim[np.abs(rim[:, 1] - y) < 0.05, 0].min() for y in ys]
+    assert max(left) <= points[:, 0].min() + 0.5 * local, left  # ... all along it
+    whole = footprint(surface, points, uv, distances, "auto")  # without the straight edges: as it was
+    assert whole.surface is surface

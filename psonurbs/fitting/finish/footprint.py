@@ -74,6 +74,7 @@ from scipy.spatial import Delaunay, cKDTree
 from psonurbs.fitting.prepare.robust_weights import biweights
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.raster import rasterised
 from psonurbs.geometry.trim import (
     Trim,
@@ -86,7 +87,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
-from .straight_edges import straight_edges
+from .straight_edges import StraightEdges, reaching_domain, straight_edges
 
 NEIGHBOURS = 16
 ALPHA = 2.5
@@ -230,13 +231,11 @@ class Contours:
 
 
 def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                  doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None) -> Contours | None:
+                  doubted: np.ndarray | None = None, edges: StraightEdges | None = None) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint);
-    ``seen_along`` (3,): the normal of the plane an open patch was projected on, whose
-    straight edges of the data the face does not cross (:func:`past_straight_edges`)."""
+    ``edges``: the data's straight edges, which the face does not cross (:func:`past_straight_edges`)."""
     scale = mean_speeds(surface)
-    marks = marks_the_data(distances, uv, scale)
-    good = np.flatnonzero(marks if doubted is None else marks & ~doubted)
+    good = np.flatnonzero(data_marks(distances, uv, scale, doubted))
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
@@ -270,15 +269,23 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
-    past = past_straight_edges(surface, points[good], seen_along, xs, ys, scale) if seen_along is not None else None
+    past = past_straight_edges(surface, edges, xs, ys, scale) if edges is not None else None
+    square = edges.untilted() if edges is not None else None  # past a tilted one, a margin as at any edge
+    past_square = past if square is edges else \
+        past_straight_edges(surface, square, xs, ys, scale) if square is not None else None
     reach = MARGIN * float(np.median(data_spacing))  # the loops' margin on the surface
 
     def bounded(field: np.ndarray) -> np.ndarray:
-        """The field held, past a straight edge of the data, within the loops' margin of it
+        """The field held within the loops' margin of the data's straight edges, measured
         on the surface (the raster's margin is one at the mean speeds, wider where an edge
-        is stretched), and closed at the raster's rim."""
+        is stretched), within a raster cell of an untilted one, and closed at the raster's
+        rim. An untilted edge stands at the outermost point, where a dense edge's true
+        one is: a margin past it is surface past the true edge; the cell keeps the
+        outermost points inside the contour. A tilted edge's plane is only so sure."""
         if past is not None:
             field = np.maximum(field, past - reach)
+        if past_square is not None:
+            field = np.maximum(field, past_square - cell)
         field[[0, -1], :] = field[:, [0, -1]] = np.inf
         return field
 
@@ -295,10 +302,11 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     # the widest gap on the surface outside the face: a real gap, or sampling?
     empty = np.argwhere(in_domain & (field > 0.0))
     rim = np.argwhere(mask & ~ndimage.binary_erosion(mask))  # the face's boundary cells
+    room = None if past_square is None else cell - past_square[empty[:, 0], empty[:, 1]]  # to the cut
     gap = widest_gap(surface, np.column_stack([xs[empty[:, 0]], ys[empty[:, 1]]]) / scale,
-                     np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, data, data_spacing) \
+                     np.column_stack([xs[rim[:, 0]], ys[rim[:, 1]]]) / scale, data, data_spacing, room) \
         if len(empty) and len(rim) else 0.0
-    overrun = edge_overrun(surface, data, data_spacing)
+    overrun = edge_overrun(surface, data, data_spacing, square)
     polygons = outlines(field, xs, ys, scale, spacing)
     if not polygons:  # a face finer than the raster (a tiny cluster far from the rest): no loops
         return None
@@ -322,16 +330,13 @@ def outlines(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarra
     return [polygons[outer], *(p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest)]
 
 
-def past_straight_edges(surface: NurbsSurface, points: np.ndarray, normal: np.ndarray, xs: np.ndarray,
-                        ys: np.ndarray, scale: np.ndarray, n: int = AREA_GRID) -> np.ndarray | None:
+def past_straight_edges(surface: NurbsSurface, edges: StraightEdges, xs: np.ndarray, ys: np.ndarray,
+                        scale: np.ndarray, n: int = AREA_GRID) -> np.ndarray:
     """How far the surface at each cell of the raster (len(xs), len(ys); the domain at the
-    mean speeds ``scale``) lies past the straight edges of the points (N, 3) seen along
-    ``normal`` (:mod:`psonurbs.fitting.finish.straight_edges`), in cloud units (negative
-    inside them): the surface on an n x n grid over the domain, interpolated linearly
-    (cells outside the domain take its edge's). None where the data have no straight edge."""
-    edges = straight_edges(points, normal, ALPHA)
-    if edges is None:
-        return None
+    mean speeds ``scale``) lies past the data's straight ``edges``
+    (:mod:`psonurbs.fitting.finish.straight_edges`), in cloud units (negative inside
+    them): the surface on an n x n grid over the domain, interpolated linearly (cells
+    outside the domain take its edge's)."""
     us, vs = surface.parameter_grid(n, n)
     uu, vv = np.meshgrid(us, vs, indexing="ij")
     past = edges.beyond(surface.evaluate(uu.ravel(), vv.ravel())).reshape(n, n)
@@ -440,6 +445,13 @@ def median_spacing(x: np.ndarray) -> float:
     return float(np.median(local_spacing(x[drawn]))) * float(np.sqrt(FOOTPRINT_POINTS / len(x)))
 
 
+def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, doubted: np.ndarray | None) -> np.ndarray:
+    """The points (N,) that say where the data lie (:func:`marks_the_data`) and that the
+    robust stage does not doubt."""
+    marks = marks_the_data(distances, uv, scale)
+    return marks if doubted is None else marks & ~doubted
+
+
 def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """Which points (N,) say where the data lie on the surface: all but gross outliers,
     of robust weight 0 (:func:`psonurbs.fitting.prepare.robust_weights.biweights`) *and*
@@ -466,23 +478,27 @@ def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> 
 
 
 def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray, points: np.ndarray,
-               spacing: np.ndarray) -> float:
+               spacing: np.ndarray, room: np.ndarray | None = None) -> float:
     """The widest gap on the surface outside the face, in the spacing of the points
     (N, 3) beside it (their local spacing (N,): :func:`gap_scale`): max over the surface
     at the parameters ``empty_uv`` (M, 2) (at most ``GAP_SAMPLES`` of them, evenly taken)
     of the radius of the empty disc there, the
     smaller of the distance to the face (its boundary sampled at ``face_uv``) and the
     distance to the surface's edge (the chord to the edge point along each parameter
-    line of an open direction), over the points' spacing there (:func:`gap_scale`, on
-    the surface).
+    line of an open direction) and, given, the ``room`` (M,) to the cut at the data's
+    straight edges (surface past them is cut off, not a gap beside the data), over the
+    points' spacing there (:func:`gap_scale`, on the surface).
 
     Measured on the surface itself, not in the parameter domain at the mean speeds:
     where the surface is stretched (an edge row of control points far out, a flap past
     the data) a sliver of the domain is a wide band of surface with no data on it."""
-    empty_uv = empty_uv[::max(1, -(-len(empty_uv) // GAP_SAMPLES))]
+    every = max(1, -(-len(empty_uv) // GAP_SAMPLES))
+    empty_uv = empty_uv[::every]
     face_uv = face_uv[::max(1, -(-len(face_uv) // GAP_SAMPLES))]
     at = surface.evaluate(empty_uv[:, 0], empty_uv[:, 1])
     radius = cKDTree(surface.evaluate(face_uv[:, 0], face_uv[:, 1])).query(at)[0]
+    if room is not None:
+        radius = np.minimum(radius, room[::every])
     for k, closed, ends in ((0, surface.closed_u, surface.domain_u), (1, surface.closed_v, surface.domain_v)):
         if closed:
             continue
@@ -493,8 +509,8 @@ def widest_gap(surface: NurbsSurface, empty_uv: np.ndarray, face_uv: np.ndarray,
     return float(np.max(radius / gap_scale(points, spacing, at)))
 
 
-def edge_overrun(surface: NurbsSurface, points: np.ndarray, spacing_of: np.ndarray, samples: int = EDGE_SAMPLES
-                 ) -> float:
+def edge_overrun(surface: NurbsSurface, points: np.ndarray, spacing_of: np.ndarray,
+                 cut: StraightEdges | None = None, samples: int = EDGE_SAMPLES) -> float:
     """How far the surface's edges run past the data (N, 3): the distance on the surface
     from an open direction's edge to the nearest point, in that point's local spacing
     ``spacing_of`` (N,; :func:`local_spacing`: the density's, not the step along a scan
@@ -506,7 +522,10 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, spacing_of: np.ndarr
     spacings deep, is a single gap, narrower than the stretch; the held distance is 1.0
     to 1.2 spacings in the median of uniform and 50-fold graded squares, 2.2 at most over
     72 of them); a strip of surface the polish let grow past the data, where a step or a
-    ridge meets the edge, or a flap held by a stray keeps its depth along it."""
+    ridge meets the edge, or a flap held by a stray keeps its depth along it.
+
+    With ``cut`` (the data's untilted straight edges), an edge runs past the data no farther
+    than to them (beyond, it is cut off)."""
     if len(points) <= NEIGHBOURS:
         return 0.0
     tree = cKDTree(points)
@@ -521,6 +540,8 @@ def edge_overrun(surface: NurbsSurface, points: np.ndarray, spacing_of: np.ndarr
             uv[:, k], uv[:, 1 - k] = end, other[0] + t * (other[1] - other[0])
             at = surface.evaluate(uv[:, 0], uv[:, 1])
             gap, nearest = tree.query(at)
+            if cut is not None:
+                gap = np.minimum(gap, np.maximum(-cut.beyond(at), 0.0))
             spacing = spacing_of[nearest]
             step = float(np.median(np.linalg.norm(np.diff(at, axis=0), axis=1)))
             window = int(np.clip(round(ALPHA * float(np.median(spacing)) / max(step, 1e-300)), 1, samples))
@@ -606,11 +627,40 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     (3,): the normal of the plane the patch was projected on (its data's straight edges
     bound the face, :func:`past_straight_edges`). Where ``trim: auto`` finds no gap but
     the surface runs past a straight edge by more than the loops' margin, the face is
-    the whole domain cut there."""
-    whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    the whole domain cut there. A side of the surface that ends short of a straight edge
+    by more than the margin is first carried past it
+    (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`; the face's surface
+    is then the longer one, if it is trimmed)."""
     if mode is False or len(uv) < 4:
-        return whole
-    found = face_contours(surface, points, uv, distances, doubted, seen_along)
+        return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    edges = None
+    if seen_along is not None:  # from the points that mark the data, and those just past the surface's edge
+        scale = mean_speeds(surface)
+        marks = data_marks(distances, uv, scale, doubted)
+        on_edge = np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
+        near = on_edge & (distances <= ALPHA * median_spacing(uv[marks] * scale))
+        good = marks | (near if doubted is None else near & ~doubted)
+        edges = straight_edges(points[good], seen_along, ALPHA)
+    if edges is not None:
+        domain = reaching_domain(surface, edges, median_spacing(points[good]))
+        if domain is not None:
+            longer = surface.restricted(*domain)
+            lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
+            longer_uv, longer_distances = closest_parameters(longer, points, (uv - lo) / width)
+            moved = ~marks | on_edge  # a global search where the foot may move far: junk, and points past an edge
+            if moved.any():
+                longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
+            face = trimmed_face(longer, points, longer_uv, longer_distances, mode, doubted, edges)
+            if face.trim is not None:
+                return face
+    return trimmed_face(surface, points, uv, distances, mode, doubted, edges)
+
+
+def trimmed_face(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
+                 mode: str | bool, doubted: np.ndarray | None, edges: StraightEdges | None) -> Footprint:
+    """:func:`footprint` on one surface, the data's straight ``edges`` given."""
+    whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    found = face_contours(surface, points, uv, distances, doubted, edges)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
     polygons, cut = found.polygons, False

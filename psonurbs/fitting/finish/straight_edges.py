@@ -14,17 +14,29 @@ straight only if no point lies beyond it by more than the sampling scatter and t
 outermost points do not bend. For the face it is a plane across the view (a cut seen at
 a tilt), fitted with each slice weighted by its count, and moved out to the outermost
 point, so that no point of the data lies beyond it (:func:`straight_edges`).
+
+A surface can also end short of such an edge: where a graded cloud thins out, its edge
+bulges in between the sparse last points, and the true surface there is left uncovered.
+Such a side is carried past the edge by continuing its end spans
+(:func:`reaching_domain`), and the face is cut at the edge as before.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.special import fdtri
 
 from psonurbs.fitting.parameters.parametrisation import min_area_rectangle, plane_basis
+from psonurbs.geometry.nurbs import NurbsSurface
 
 SAG = 2.0  # a straight edge's outermost points sag from their chord by at most this many scatters
 SLICES = 8  # slices along an edge, each giving its outermost point
+BEYOND = 0.25  # a side short of a straight edge is carried this many spacings past it
+EXTENSION_STEPS = 3  # a side carried past its straight edge is checked this many times at most
+MAX_TILT = 1.0  # a cut's tilt to the view's normal, tan: at most 45 degrees (a steeper one is no edge seen)
+TILT_LEVEL = 0.99  # a straight edge's tilt with the heights is kept at this significance
+SIDES = ((0, False), (1, False), (0, True), (1, True))  # (direction, upper end): u = 0, v = 0, u = 1, v = 1
 
 
 def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: float, bins: int = SLICES,
@@ -39,7 +51,8 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
     outermost of n points lies about 1/n of the slice's depth short of the true edge), so
     that the sparse end of a graded edge, its outermost points farther in, does not tilt
     the plane (moved out to the outermost point, it would stand off the dense end). The
-    parameters' alignment, which needs only the data's extent, takes the plain line.
+    height's term is kept only where it is significant and physical (:func:`tilted_edge`).
+    The parameters' alignment, which needs only the data's extent, takes the plain line.
 
     A straight edge's points lie beyond that line by no more than their sampling
     ``scatter``, and its lowest points do not bend: the parabola through them sags from
@@ -60,8 +73,8 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
         c = 0.0
     else:
         w = np.bincount(slices, minlength=bins)[slices[first]].astype(float)  # by inverse variance
-        rows = np.column_stack([np.ones(len(first)), along[first], height[first]])
-        a, b, c = np.linalg.lstsq(rows * w[:, None], across[first] * w, rcond=None)[0]
+        rows = np.column_stack([np.ones(len(first)), along[first], height[first]]) * w[:, None]
+        a, b, c = tilted_edge(rows, across[first] * w)
     flat = across - c * height if height is not None else across  # across, the cut's tilt taken out
     line = a + b * along
     beyond = float(np.max(flat - line) if upper else np.max(line - flat))
@@ -71,6 +84,26 @@ def straight_line(along: np.ndarray, across: np.ndarray, upper: bool, scatter: f
     if beyond > scatter or sag > SAG * scatter:
         return None
     return float(a), float(b), float(c)
+
+
+def tilted_edge(rows: np.ndarray, target: np.ndarray, level: float = TILT_LEVEL) -> tuple[float, float, float]:
+    """The weighted least squares (a, b, c) of ``rows`` (n, 3: the columns 1, along, height
+    in the units of across, each row scaled by its weight) against ``target`` (n,), with
+    the height's c kept only where it explains the outermost points better than the line
+    alone at the F test's ``level`` (1 and n - 3 degrees of freedom) and the cut it
+    describes leans at most ``MAX_TILT`` (c is the tangent of its angle to the view's
+    normal; a view chosen to see the surface squarely sees a cut across it nearly edge
+    on), else c = 0. A sparse edge's outermost points lie up to a spacing short of it at
+    random, and a c fitted to that scatter tilts the edge by the heights' swing (a
+    wave's 0.2 moved its corner 0.01 past the true edge)."""
+    line = np.linalg.lstsq(rows[:, :2], target, rcond=None)[0]
+    plane = np.linalg.lstsq(rows, target, rcond=None)[0]
+    if len(target) > 4:
+        sse2 = float(np.sum((rows[:, :2] @ line - target) ** 2))
+        sse3 = float(np.sum((rows @ plane - target) ** 2))
+        if sse2 - sse3 > fdtri(1, len(target) - 3, level) * sse3 / (len(target) - 3) and abs(plane[2]) <= MAX_TILT:
+            return float(plane[0]), float(plane[1]), float(plane[2])
+    return float(line[0]), float(line[1]), 0.0
 
 
 @dataclass(frozen=True)
@@ -86,17 +119,31 @@ class StraightEdges:
     span: np.ndarray  # (2,)
     edges: tuple[tuple[int, bool, float, float, float], ...]
 
-    def beyond(self, x: np.ndarray) -> np.ndarray:
-        """How far the points x (M, 3) lie past the farthest-reaching edge, across it in the
-        plane (cloud units; negative inside every edge)."""
+    def past(self, x: np.ndarray) -> np.ndarray:
+        """How far the points x (M, 3) lie past each edge, across it in the plane (E, M);
+        cloud units, negative inside. Affine in x."""
         t = (x - self.origin) @ self.axes.T
         t[:, :2] /= self.span
-        out = np.full(len(x), -np.inf)
-        for k, upper, a, b, c in self.edges:
+        out = np.empty((len(self.edges), len(x)))
+        for e, (k, upper, a, b, c) in enumerate(self.edges):
             edge = a + b * t[:, 1 - k] + c * t[:, 2]
-            past = t[:, k] - edge if upper else edge - t[:, k]
-            out = np.maximum(out, past * self.span[k] / np.hypot(1.0, b * self.span[k] / self.span[1 - k]))
+            out[e] = (t[:, k] - edge if upper else edge - t[:, k]) * self.span[k] / \
+                np.hypot(1.0, b * self.span[k] / self.span[1 - k])
         return out
+
+    def beyond(self, x: np.ndarray) -> np.ndarray:
+        """How far the points x (M, 3) lie past the farthest-reaching edge (cloud units;
+        negative inside every edge)."""
+        return self.past(x).max(axis=0)
+
+    def untilted(self) -> StraightEdges | None:
+        """The edges seen square (c = 0) alone, None if none is: a tilted edge's plane
+        holds only near its data's heights (its tilt's error times a surface's height
+        swing: 0.05 on step_bump), so what lies past it elsewhere is not measured by it."""
+        kept = tuple(edge for edge in self.edges if edge[4] == 0.0)
+        if len(kept) == len(self.edges):
+            return self
+        return replace(self, edges=kept) if kept else None
 
 
 def straight_edges(points: np.ndarray, normal: np.ndarray, alpha: float) -> StraightEdges | None:
@@ -120,13 +167,84 @@ def straight_edges(points: np.ndarray, normal: np.ndarray, alpha: float) -> Stra
     for k in (0, 1):
         across, along = t[:, k], t[:, 1 - k]
         for upper in (False, True):
-            edge = straight_line(along, across, upper, scatter, height=t[:, 2])
+            edge = straight_line(along, across, upper, scatter, height=t[:, 2] / span[k])  # c: the cut's tilt
             if edge is None:
                 continue
             a, b, c = edge
+            c = float(c / span[k])
             inner = a + b * along + c * t[:, 2]
             reach = float(np.max(across - inner) if upper else np.max(inner - across))
             edges.append((k, upper, a + reach if upper else a - reach, b, c))
     if not edges:
         return None
     return StraightEdges(origin @ axes, axes, span, tuple(edges))
+
+
+def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float, n: int = 101
+                    ) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """The domain (u range, v range) around [0, 1]^2 on which an open surface reaches
+    ``BEYOND`` times the data's ``spacing`` past every untilted straight edge of its data
+    that a side of it falls short of by more than a spacing; None if no side does.
+
+    Past its data's last points a fitted surface ends where the fit put its edge, and
+    where the data thin out (a graded cloud's sparse end) that is up to a sampling gap
+    short of the data's edge, whose true surface is then left uncovered. Within a
+    spacing it is at the data's edge (a noisy cloud's outermost points stand a few
+    sigmas out, a random sample's a fraction of a spacing in). A tilted edge carries no
+    side (:meth:`StraightEdges.untilted`). A side runs along the
+    edge it moves out across: e = argmin median |past_e| over the side's n samples S_i
+    among the edges with g_ie = past_e(S_i + D_i) - past_e(S_i) >= cos 60° |D_i| at
+    every sample (D the outward derivative: past_e is affine). It is carried out by
+    delta = max_i (reach - past_e(S_i)) / g_ie (its end spans' polynomials continued,
+    :meth:`NurbsSurface.restricted`), checked on the longer surface, at most
+    ``EXTENSION_STEPS`` times and at most one end span: an extrapolation farther than
+    its span is a guess, not the data's surface; nor is one whose weights turn
+    negative.
+    """
+    ranges, reach, edges = [[0.0, 1.0], [0.0, 1.0]], BEYOND * spacing, edges.untilted()
+    if edges is None or surface.closed_u or surface.closed_v or surface.domain_u != (0.0, 1.0) or surface.domain_v != (0.0, 1.0):
+        return None
+    t = np.linspace(0.0, 1.0, n)
+    spans = [[float(np.diff(np.unique(knots))[0]), float(np.diff(np.unique(knots))[-1])]
+             for knots in (surface.knots_u, surface.knots_v)]
+    matched: dict[tuple[int, bool], int] = {}
+    current = surface
+    for _ in range(EXTENSION_STEPS):
+        grown, before = False, [list(r) for r in ranges]
+        for k, upper in SIDES:
+            at = np.full(n, 1.0 if upper else 0.0)
+            uv = (at, t) if k == 0 else (t, at)
+            s, su, sv = current.derivatives(*uv)
+            outward = (su if k == 0 else sv) * (1.0 if upper else -1.0)
+            past = edges.past(s)
+            rate = edges.past(s + outward) - past
+            if (k, upper) not in matched:
+                along = np.all(rate >= 0.5 * np.linalg.norm(outward, axis=1), axis=1)
+                if not along.any():
+                    continue
+                e = int(np.flatnonzero(along)[np.argmin(np.median(np.abs(past[along]), axis=1))])
+                if np.max(-past[e]) <= spacing:  # at the data's edge
+                    continue
+                matched[(k, upper)] = e
+            e = matched[(k, upper)]
+            if np.min(past[e]) >= reach or np.any(rate[e] <= 0.0):
+                continue
+            width = ranges[k][1] - ranges[k][0]  # the current domain in the original parameter
+            step = float(np.max((reach - past[e]) / rate[e])) * width
+            end = 1 if upper else 0
+            room = spans[k][end] - abs(ranges[k][end] - end)
+            step = min(step, room)
+            if step <= 1e-9 * width:
+                continue
+            ranges[k][end] += step if upper else -step
+            grown = True
+        if not grown:
+            break
+        try:
+            current = surface.restricted(tuple(ranges[0]), tuple(ranges[1]))
+        except ValueError:  # a rational surface's weights continued below zero: no farther
+            ranges = before
+            break
+    if ranges == [[0.0, 1.0], [0.0, 1.0]]:
+        return None
+    return (ranges[0][0], ranges[0][1]), (ranges[1][0], ranges[1][1])
