@@ -634,12 +634,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     edges = None
-    if seen_along is not None:  # from the points that mark the data, and those just past the surface's edge
-        scale = mean_speeds(surface)
-        marks = data_marks(distances, uv, scale, doubted)
-        on_edge = np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
-        near = on_edge & (distances <= ALPHA * median_spacing(uv[marks] * scale))
-        good = marks | (near if doubted is None else near & ~doubted)
+    if seen_along is not None:  # from the points that mark the data (a stray past an edge moves no edge)
+        good = data_marks(distances, uv, mean_speeds(surface), doubted)
         edges = straight_edges(points[good], seen_along, ALPHA)
     if edges is not None:
         domain = reaching_domain(surface, edges, median_spacing(points[good]))
@@ -647,7 +643,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
             longer = surface.restricted(*domain)
             lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
             longer_uv, longer_distances = closest_parameters(longer, points, (uv - lo) / width)
-            moved = ~marks | on_edge  # a global search where the foot may move far: junk, and points past an edge
+            # a global search where the foot may move far: junk, and points past an edge
+            moved = ~good | np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
             if moved.any():
                 longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
             face = trimmed_face(longer, points, longer_uv, longer_distances, mode, doubted, edges)

@@ -195,11 +195,13 @@ def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float,
     edge it moves out across: e = argmin median |past_e| over the side's n samples S_i
     among the edges with g_ie = past_e(S_i + D_i) - past_e(S_i) >= cos 60° |D_i| at
     every sample (D the outward derivative: past_e is affine). It is carried out by
-    delta = max_i (reach - past_e(S_i)) / g_ie (its end spans' polynomials continued,
-    :meth:`NurbsSurface.restricted`), checked on the longer surface, at most
-    ``EXTENSION_STEPS`` times and at most one end span: an extrapolation farther than
-    its span is a guess, not the data's surface; nor is one whose weights turn
-    negative.
+    delta = (reach - past_e(S_i)) / g_ie at its shortest sample i (its end spans'
+    polynomials continued, :meth:`NurbsSurface.restricted`), no part of it moved farther
+    than twice that sample's need (a side turning along the edge near a corner moves
+    out slowly there, and a step to carry that point is a long extrapolation
+    elsewhere), checked on the longer surface, at most ``EXTENSION_STEPS`` times and at
+    most one end span: an extrapolation farther than its span is a guess, not the
+    data's surface; nor is one whose weights turn negative.
     """
     ranges, reach, edges = [[0.0, 1.0], [0.0, 1.0]], BEYOND * spacing, edges.untilted()
     if edges is None or surface.closed_u or surface.closed_v or surface.domain_u != (0.0, 1.0) or surface.domain_v != (0.0, 1.0):
@@ -230,7 +232,10 @@ def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float,
             if np.min(past[e]) >= reach or np.any(rate[e] <= 0.0):
                 continue
             width = ranges[k][1] - ranges[k][0]  # the current domain in the original parameter
-            step = float(np.max((reach - past[e]) / rate[e])) * width
+            short = int(np.argmin(past[e]))  # where it falls shortest, carried a quarter spacing past
+            need = reach - float(past[e][short])
+            step = min(need / float(rate[e][short]),  # no part of the side moved farther than twice that
+                       2.0 * need / float(np.linalg.norm(outward, axis=1).max())) * width
             end = 1 if upper else 0
             room = spans[k][end] - abs(ranges[k][end] - end)
             step = min(step, room)
