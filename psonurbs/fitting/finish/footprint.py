@@ -630,7 +630,9 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     the whole domain cut there. A side of the surface that ends short of a straight edge
     by more than the margin is first carried past it
     (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`; the face's surface
-    is then the longer one, if it is trimmed)."""
+    is then the longer one, if it is trimmed and leaves no more points off it than the
+    surface as fitted: a sparse corner's point carried past its neighbours' alpha
+    scale is off the face)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     edges = None
@@ -649,7 +651,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
                 longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
             face = trimmed_face(longer, points, longer_uv, longer_distances, mode, doubted, edges)
             if face.trim is not None:
-                return face
+                as_fitted = trimmed_face(surface, points, uv, distances, mode, doubted, edges)
+                return face if face.points_outside <= as_fitted.points_outside else as_fitted
     return trimmed_face(surface, points, uv, distances, mode, doubted, edges)
 
 
