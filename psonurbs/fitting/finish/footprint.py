@@ -269,10 +269,12 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     ys = np.arange(lo[1] - pad, hi[1] + pad + cell, cell)
     mask = rasterised(tri.points[tri.simplices[in_face]], xs[0], ys[0], cell, (len(xs), len(ys)))
     mask &= ~bent_off(surface, tri, in_face, mask, xs, ys, scale, cell)
-    past = past_straight_edges(surface, edges, xs, ys, scale) if edges is not None else None
-    square = edges.untilted() if edges is not None else None  # past a tilted one, a margin as at any edge
-    past_square = past if square is edges else \
-        past_straight_edges(surface, square, xs, ys, scale) if square is not None else None
+    past = past_square = square = None  # all the edges', and the untilted ones' (past a tilted one, a margin)
+    if edges is not None:
+        square = edges.untilted()
+        sets = [edges] if square is None or square is edges else [edges, square]
+        fields = past_straight_edges(surface, sets, xs, ys, scale)
+        past, past_square = fields[0], None if square is None else fields[-1]
     reach = MARGIN * float(np.median(data_spacing))  # the loops' margin on the surface
 
     def bounded(field: np.ndarray) -> np.ndarray:
@@ -330,21 +332,22 @@ def outlines(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarra
     return [polygons[outer], *(p for k, p in enumerate(polygons) if k != outer and -signed_area(p * scale) >= smallest)]
 
 
-def past_straight_edges(surface: NurbsSurface, edges: StraightEdges, xs: np.ndarray, ys: np.ndarray,
-                        scale: np.ndarray, n: int = AREA_GRID) -> np.ndarray:
+def past_straight_edges(surface: NurbsSurface, edge_sets: list[StraightEdges], xs: np.ndarray, ys: np.ndarray,
+                        scale: np.ndarray, n: int = AREA_GRID) -> list[np.ndarray]:
     """How far the surface at each cell of the raster (len(xs), len(ys); the domain at the
-    mean speeds ``scale``) lies past the data's straight ``edges``
+    mean speeds ``scale``) lies past each set of the data's straight edges
     (:mod:`psonurbs.fitting.finish.straight_edges`), in cloud units (negative inside
-    them): the surface on an n x n grid over the domain, interpolated linearly (cells
+    them): the surface on one n x n grid over the domain, interpolated linearly (cells
     outside the domain take its edge's)."""
     us, vs = surface.parameter_grid(n, n)
     uu, vv = np.meshgrid(us, vs, indexing="ij")
-    past = edges.beyond(surface.evaluate(uu.ravel(), vv.ravel())).reshape(n, n)
+    grid = surface.evaluate(uu.ravel(), vv.ravel())
     (u0, u1), (v0, v1) = surface.domain_u, surface.domain_v
     iu = (np.clip(xs / scale[0], 0.0, 1.0) * (u1 - u0) + u0 - us[0]) / (us[-1] - us[0]) * (n - 1)
     iv = (np.clip(ys / scale[1], 0.0, 1.0) * (v1 - v0) + v0 - vs[0]) / (vs[-1] - vs[0]) * (n - 1)
     ii, jj = np.meshgrid(iu, iv, indexing="ij")
-    return ndimage.map_coordinates(past, [ii, jj], order=1, mode="nearest")
+    return [ndimage.map_coordinates(edges.beyond(grid).reshape(n, n), [ii, jj], order=1, mode="nearest")
+            for edges in edge_sets]
 
 
 def bent_off(surface: NurbsSurface, tri: Delaunay, in_face: np.ndarray, mask: np.ndarray, xs: np.ndarray,

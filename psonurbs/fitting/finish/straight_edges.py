@@ -204,7 +204,7 @@ def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float,
     data's surface; nor is one whose weights turn negative.
     """
     ranges, reach, edges = [[0.0, 1.0], [0.0, 1.0]], BEYOND * spacing, edges.untilted()
-    if edges is None or surface.closed_u or surface.closed_v or surface.domain_u != (0.0, 1.0) or surface.domain_v != (0.0, 1.0):
+    if edges is None or surface.closed_u or surface.closed_v or (surface.domain_u, surface.domain_v) != ((0, 1), (0, 1)):
         return None
     t = np.linspace(0.0, 1.0, n)
     spans = [[float(np.diff(np.unique(knots))[0]), float(np.diff(np.unique(knots))[-1])]
