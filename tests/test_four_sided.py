@@ -19,7 +19,7 @@ from psonurbs.fitting.parameters.intrinsic import (
     rigid_embedding,
     surface_graph,
 )
-from psonurbs.fitting.parameters.parametrisation import fill, unit_square
+from psonurbs.fitting.parameters.parametrisation import fill, fill_cells, unit_square
 from psonurbs.fitting.pipeline import fit_points
 from psonurbs.geometry.net import NetLayout
 
@@ -230,19 +230,46 @@ def test_a_four_sided_map_that_folds_gives_way_to_the_flattening(monkeypatch):
 
 
 def test_four_sided_parameters_skip_coarse_nets_that_cannot_hold_the_shape():
-    """On the cone sector's own net (orders 3 x 2, 7 x 2 control points) the four-sided
-    parameters corrected on that net alone fit 12 times closer than through the ladder,
-    whose single quadratic Bezier patch cannot bend round 270 degrees; that is kept."""
+    """On the cone sector's own net (orders 3 x 2, 7 x 2 control points) the ladder's single
+    quadratic Bezier patch cannot bend round 270 degrees: its foot points crowd the
+    parameters into part of the square, and they fit 5 times farther than the four-sided
+    parameters corrected on that net alone, which fill the square and are kept."""
     pts, _ = cone_sector(n=2000)
     pts = (pts - pts.mean(axis=0)) / np.linalg.norm(np.ptp(pts, axis=0))
     par = parametrise_intrinsic(pts)
-    layout = NetLayout((7, 2), (2, 1))
-    uv, report = coarse_to_fine(layout, pts, par.uv, 1e-6, direct=True)
+    uv, report = coarse_to_fine(NetLayout((7, 2), (2, 1)), pts, par.uv, 1e-6)
     ladder, direct = report[-2], report[-1]
     assert direct["direct"] and direct["net"] == [7, 2]
     assert direct["rmse"] < ladder["rmse"] / 5.0, report
-    kept, _ = coarse_to_fine(layout, pts, par.uv, 1e-6)
-    assert not np.array_equal(uv, kept)
+    assert ladder["fill"] < 0.7 and direct["fill"] == 1.0, report
+    assert fill(uv, fill_cells(len(uv))) == 1.0
+
+
+def s_fold(n=2000, noise=0.002, seed=0):
+    """A sheet whose cross-section is an S of two 230-degree arcs of radius 0.5 turning
+    opposite ways, extruded 1.5 along y (no plane sees it as a height field), normalised."""
+    rng = np.random.default_rng(seed)
+    sweep, radius = np.radians(230.0), 0.5
+    s, y = 2.0 * sweep * rng.random(n), 1.5 * rng.random(n)
+    first = s < sweep
+    angle = np.where(first, s - sweep, np.pi - (s - sweep))
+    p = np.column_stack([np.where(first, -radius, radius) + radius * np.cos(angle), y, radius * np.sin(angle)])
+    p += noise * rng.normal(size=p.shape)
+    return (p - p.mean(axis=0)) / np.linalg.norm(np.ptp(p, axis=0))
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_a_rectangle_flattening_keeps_the_square_filled_when_coarse_nets_cannot_bend_round(seed):
+    """An S fold flattens to a rectangle that fills the square; the ladder's bicubic Bezier
+    patch cannot follow two 230-degree arcs, and its foot points leave 5% of the square
+    without data (the fine net extrapolates there). The parameters corrected on the
+    configured 12 x 6 net alone fill the square, and they are kept."""
+    pts = s_fold(seed=seed)
+    par = parametrise_intrinsic(pts)
+    assert par.info["sides"] == "rectangle"
+    uv, report = coarse_to_fine(NetLayout((12, 6), (3, 3)), pts, par.uv, 1e-6)
+    assert report[-2]["fill"] < 0.96 and report[-1]["direct"], report
+    assert fill(uv, fill_cells(len(uv))) == 1.0
 
 
 def test_the_cone_sector_is_fitted_to_its_exact_surface():

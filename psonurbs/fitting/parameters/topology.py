@@ -158,7 +158,7 @@ def parametrise_for(points: np.ndarray, sample: np.ndarray, topology: str, confi
     if oriented(Parametrisation(par.uv[sample], par.info), layout, points[sample], config).info.get("swapped"):
         par = par.swapped()
     if par.info["method"] == "intrinsic":
-        uv, levels = coarse_to_fine(layout, points, par.uv, config.smoothing, direct=par.info.get("sides") == "four")
+        uv, levels = coarse_to_fine(layout, points, par.uv, config.smoothing)
         par = Parametrisation(uv, {**par.info, "coarse_to_fine": levels})
     return par
 
