@@ -85,9 +85,10 @@ def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smooth
     layouts), and per level its net size, rounds taken, RMSE (normalised units) and
     :func:`fill` of the square.
 
-    The first parameters are also corrected on the configured net alone (reported last,
-    ``"direct": true``), and that is kept if it fills at least ``FILL_MARGIN`` more of the
-    square than the ladder's. A flattening already holds the sheet's sides on the
+    Where the ladder leaves at least ``FILL_MARGIN`` less of the square filled than the
+    first parameters did, those are also corrected on the configured net alone (reported
+    last, ``"direct": true``), and that is kept if it fills at least ``FILL_MARGIN`` more of
+    the square than the ladder's. A flattening already holds the sheet's sides on the
     square's sides, and a coarse net that cannot bend round the sheet spoils that: its
     foot points crowd the parameters where it can reach, leaving part of the square
     without data, and the fine net extrapolates there. A single quadratic Bezier patch
@@ -101,6 +102,8 @@ def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smooth
     for level in levels:
         uv, entry = corrected(level, layout, points, uv, smoothing, rounds)
         report.append(entry)
+    if report[-1]["fill"] + FILL_MARGIN > fill(first, fill_cells(len(first))):
+        return uv, report
     alone, entry = corrected(levels[-1], layout, points, first, smoothing, rounds)
     report.append({**entry, "direct": True})
     if entry["fill"] >= report[-2]["fill"] + FILL_MARGIN:
