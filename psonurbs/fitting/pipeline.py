@@ -199,7 +199,8 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
             every_foot_point(surface, in_frame, cloud.source, done.uv)
         face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False,
                          doubted_points(cloud.neighbourhoods, cloud.source),
-                         par.info.get("normal") if par.info.get("method") == "plane" else None)
+                         par.info.get("normal") if par.info.get("method") == "plane" else None,
+                         par.info.get("method") == "intrinsic")
         surface, dist = face.surface, face.distances
         info["trim"] = face.to_dict()
         checks = check_fit(surface, cloud.points, trim=face.trim)

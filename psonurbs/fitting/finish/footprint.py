@@ -53,8 +53,13 @@ more than ``EDGE_OVERRUN`` spacings past the data along a stretch of it
 (:func:`edge_overrun`: a strip of surface without data, which holds no such disc until it
 is twice as deep). Both are measured on the surface (:func:`widest_gap`), so a strip
 of stretched surface past the data counts however thin it is in the domain; a cloud that
-fills its rectangle leaves only sampling gaps along the edges. ``true`` always; ``false``
-never.
+fills its rectangle leaves only sampling gaps along the edges. A sheet laid flat by its
+own geometry (``flattened``: no plane sees it) keeps its loops under ``trim: auto``
+too: its square's sides are the flattening's outline of the data, ragged and rounded where
+the fine net extrapolates between and past the last points, and no straight edge of the
+data says where its face should end (a twisted ribbon's face is 2.1e-5 of the diagonal off
+the true surface in rms, the whole surface 9.9e-5; a 270-degree cone sector's 1.4e-4
+against 4.4e-4). ``true`` always; ``false`` never.
 
 An open patch projected on a plane has the data's straight edges in it
 (:mod:`psonurbs.fitting.finish.straight_edges`): every loop keeps within the margin (on
@@ -621,8 +626,8 @@ def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndar
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-              mode: str | bool, doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None
-              ) -> Footprint:
+              mode: str | bool, doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None,
+              flattened: bool = False) -> Footprint:
     """The trim of an open fit from its points (N, 3), their foot-point parameters uv
     (N, 2) and distances (N,), and the points' distances to the trimmed surface;
     ``doubted`` (N,) bool: the points the robust stage doubts (local outliers, junk joined
@@ -635,7 +640,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`; the face's surface
     is then the longer one, if it is trimmed and leaves no more points off it than the
     surface as fitted: a sparse corner's point carried past its neighbours' alpha
-    scale is off the face)."""
+    scale is off the face). ``flattened``: the sheet was laid flat by its own geometry,
+    and ``trim: auto`` keeps its loops (see the module docstring)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     edges = None
@@ -656,12 +662,13 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
             if face.trim is not None:
                 as_fitted = trimmed_face(surface, points, uv, distances, mode, doubted, edges)
                 return face if face.points_outside <= as_fitted.points_outside else as_fitted
-    return trimmed_face(surface, points, uv, distances, mode, doubted, edges)
+    return trimmed_face(surface, points, uv, distances, True if mode == "auto" and flattened else mode, doubted, edges)
 
 
 def trimmed_face(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
                  mode: str | bool, doubted: np.ndarray | None, edges: StraightEdges | None) -> Footprint:
-    """:func:`footprint` on one surface, the data's straight ``edges`` given."""
+    """:func:`footprint` on one surface, the data's straight ``edges`` given (``mode``
+    ``auto`` or True: a flattened sheet's ``auto`` is True)."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     found = face_contours(surface, points, uv, distances, doubted, edges)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
