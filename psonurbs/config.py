@@ -316,7 +316,8 @@ FIELDS: dict[str, Field] = {f.key: f for f in (
     Field("parametrisation", CHOICE, "auto", "first parameters of an open patch: plane (a projection), "
           "intrinsic (the cloud's graph laid flat), auto (the plane where it is a height field)", choices=PARAMETRISATIONS, option="--parametrisation"),
     Field("trim", AUTO_SWITCH, "auto", "trim an open surface to the data's footprint: auto where the "
-          "footprint leaves a gap or a hole or an edge runs past the data, true always, false never"),
+          "footprint leaves a gap or a hole or an edge runs past the data (a flattened sheet: always), "
+          "true always, false never"),
     Field("tolerance", NUMBER, None, "fit to this tolerance (cloud units): the smallest net meeting it "
           "is searched", least=0, least_open=True,
           also="`tolerance` or `tolerance_rel`, not both", option="--tolerance"),
