@@ -644,6 +644,8 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     and ``trim: auto`` keeps its loops (see the module docstring)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
+    if flattened and mode == "auto":
+        mode = True
     edges = None
     if seen_along is not None:  # from the points that mark the data (a stray past an edge moves no edge)
         good = data_marks(distances, uv, mean_speeds(surface), doubted)
@@ -662,13 +664,12 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
             if face.trim is not None:
                 as_fitted = trimmed_face(surface, points, uv, distances, mode, doubted, edges)
                 return face if face.points_outside <= as_fitted.points_outside else as_fitted
-    return trimmed_face(surface, points, uv, distances, True if mode == "auto" and flattened else mode, doubted, edges)
+    return trimmed_face(surface, points, uv, distances, mode, doubted, edges)
 
 
 def trimmed_face(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
                  mode: str | bool, doubted: np.ndarray | None, edges: StraightEdges | None) -> Footprint:
-    """:func:`footprint` on one surface, the data's straight ``edges`` given (``mode``
-    ``auto`` or True: a flattened sheet's ``auto`` is True)."""
+    """:func:`footprint` on one surface, the data's straight ``edges`` given."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     found = face_contours(surface, points, uv, distances, doubted, edges)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
