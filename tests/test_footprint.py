@@ -7,8 +7,10 @@ import pytest
 
 from psonurbs.fitting.finish import footprint as footprint_module
 from psonurbs.fitting.finish.footprint import footprint, footprint_notes, well_spread
+from psonurbs.fitting.prepare.robust_weights import Verdict
 from psonurbs.geometry.basis import clamped_knots
 from psonurbs.geometry.nurbs import NurbsSurface
+from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.trim import signed_area
 
 
@@ -297,11 +299,38 @@ def test_doubted_points_on_the_surface_past_an_edge_do_not_move_the_boundary(see
     distances = np.abs(rng.normal(0, sigma, len(both)))
     doubted = np.arange(len(both)) >= len(uv)
     clean = footprint(surface, surface.evaluate(*uv.T), uv, distances[:len(uv)], True)
-    face = footprint(surface, surface.evaluate(*both.T), both, distances, True, doubted)
+    face = footprint(surface, surface.evaluate(*both.T), both, distances, True, Verdict(doubted))
     taken = footprint(surface, surface.evaluate(*both.T), both, distances, True)
     assert outer_reach(face, 1) == pytest.approx(outer_reach(clean, 1), abs=0.5 * spacing)
     assert not face.trim.contains(junk).any()
     assert outer_reach(taken, 1) > outer_reach(clean, 1) + 3 * spacing
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_side_is_carried_out_to_a_spared_corner_past_it(seed):
+    """A curved sheet fitted on u, v in [0, 1]; one more point of it, the lone corner of a
+    sparse edge, lies 3 to 5 spacings past its side u = 1 (its foot held on the side). The
+    robust stage spares it: the side is carried out to it, along the surface's own
+    continuation, and the point is on the face; only doubted, it stays off it."""
+    rng = np.random.default_rng(seed)
+    g = np.linspace(0, 1, 5)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    net = np.stack([2.0 * uu, 1.5 * vv, 0.4 * np.sin(3 * uu) * (1 + vv)], axis=-1)
+    surface = NurbsSurface(3, 3, clamped_knots(5, 3), clamped_knots(5, 3), net, np.ones((5, 5)))
+    uv = rng.random((3000, 2))
+    spacing = float(np.sqrt(3.0 / 3000))
+    corner_uv = np.array([1.0 + rng.uniform(3, 5) * spacing / 2.0, rng.uniform(0.3, 0.7)])
+    corner = surface.restricted((0.0, corner_uv[0]), (0.0, 1.0)).evaluate(np.array([1.0]), corner_uv[1:])
+    points = np.vstack([surface.evaluate(*uv.T), corner])
+    feet, distances = closest_parameters(surface, points, np.vstack([uv, [1.0, corner_uv[1]]]))
+    assert feet[-1, 0] == 1.0 and distances[-1] > 3 * spacing  # held on the side, past it
+    spared = np.ones(len(points), bool)
+    face = footprint(surface, points, feet, distances, True, Verdict(np.zeros(len(points), bool), spared))
+    assert face.surface is not surface and face.points_outside == 0
+    assert face.distances[-1] < 1e-3 * spacing  # on the surface's own continuation
+    doubted = np.arange(len(points)) == len(points) - 1
+    left = footprint(surface, points, feet, distances, True, Verdict(doubted, spared & ~doubted))
+    assert left.surface is surface and left.distances[-1] > 3 * spacing
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

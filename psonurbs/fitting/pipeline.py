@@ -40,8 +40,8 @@ from psonurbs.fitting.prepare.organise import Cloud, organise, subsample
 from psonurbs.fitting.prepare.outliers import OUTLIER_SIGMAS, local_outliers
 from psonurbs.fitting.prepare.robust_weights import (
     CUTOFF_SIGMAS,
+    Verdict,
     classical_weights,
-    doubted_points,
     kept_sample,
     loss_summary,
     parameters_for_all,
@@ -198,7 +198,7 @@ def fit_points(points: np.ndarray, config, on_iteration: Callable[[int, float, f
         uv, dist = closest_parameters(surface, in_frame) if big is None else \
             every_foot_point(surface, in_frame, cloud.source, done.uv)
         face = footprint(surface, in_frame, uv, dist, config.trim if topology == "open" else False,
-                         doubted_points(cloud.neighbourhoods, cloud.source),
+                         Verdict.of(cloud.neighbourhoods, cloud.source),
                          par.info.get("normal") if par.info.get("method") == "plane" else None,
                          par.info.get("method") == "intrinsic")
         surface, dist = face.surface, face.distances

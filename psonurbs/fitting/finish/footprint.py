@@ -14,8 +14,9 @@ From the points' final parameters (their foot points on the fitted surface):
    :func:`judging_spacing`): a gap narrower than that is
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
-   and so are the points the robust stage doubts (``doubted``: junk the fit may have
-   been bent towards holds no flap of the face).
+   and so are the points the robust stage doubts (``verdict.doubted``: junk the fit may
+   have been bent towards holds no flap of the face); a point the robust loss spares
+   (``verdict.spared``: the lone corner of a sparse edge) marks the data however far off.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -76,7 +77,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
-from psonurbs.fitting.prepare.robust_weights import biweights
+from psonurbs.fitting.prepare.robust_weights import Verdict, biweights
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
@@ -92,6 +93,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
+from .carried_sides import reaching_points
 from .straight_edges import StraightEdges, reaching_domain, straight_edges
 
 NEIGHBOURS = 16
@@ -236,11 +238,11 @@ class Contours:
 
 
 def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                  doubted: np.ndarray | None = None, edges: StraightEdges | None = None) -> Contours | None:
+                  verdict: Verdict | None = None, edges: StraightEdges | None = None) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint);
     ``edges``: the data's straight edges, which the face does not cross (:func:`past_straight_edges`)."""
     scale = mean_speeds(surface)
-    good = np.flatnonzero(data_marks(distances, uv, scale, doubted))
+    good = np.flatnonzero(data_marks(distances, uv, scale, verdict))
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
@@ -453,11 +455,16 @@ def median_spacing(x: np.ndarray) -> float:
     return float(np.median(local_spacing(x[drawn]))) * float(np.sqrt(FOOTPRINT_POINTS / len(x)))
 
 
-def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, doubted: np.ndarray | None) -> np.ndarray:
-    """The points (N,) that say where the data lie (:func:`marks_the_data`) and that the
-    robust stage does not doubt."""
+def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, verdict: Verdict | None) -> np.ndarray:
+    """The points (N,) that say where the data lie: those :func:`marks_the_data` and those
+    the robust loss spares however far the fit (a sparse edge's corner), less those the
+    robust stage doubts (``verdict``)."""
     marks = marks_the_data(distances, uv, scale)
-    return marks if doubted is None else marks & ~doubted
+    if verdict is not None and verdict.spared is not None:
+        marks |= verdict.spared
+    if verdict is not None and verdict.doubted is not None:
+        marks &= ~verdict.doubted
+    return marks
 
 
 def marks_the_data(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -626,52 +633,55 @@ def pieces_of_every_point(every: np.ndarray, drawn: np.ndarray, spacing: np.ndar
 
 
 def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-              mode: str | bool, doubted: np.ndarray | None = None, seen_along: np.ndarray | None = None,
+              mode: str | bool, verdict: Verdict | None = None, seen_along: np.ndarray | None = None,
               flattened: bool = False) -> Footprint:
     """The trim of an open fit from its points (N, 3), their foot-point parameters uv
     (N, 2) and distances (N,), and the points' distances to the trimmed surface;
-    ``doubted`` (N,) bool: the points the robust stage doubts (local outliers, junk joined
-    to the surface from beyond its neighbours' reach), which mark no data; ``seen_along``
-    (3,): the normal of the plane the patch was projected on (its data's straight edges
-    bound the face, :func:`past_straight_edges`). Where ``trim: auto`` finds no gap but
-    the surface runs past a straight edge by more than the loops' margin, the face is
-    the whole domain cut there. A side of the surface that ends short of a straight edge
-    by more than the margin is first carried past it
-    (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`; the face's surface
-    is then the longer one, if it is trimmed and leaves no more points off it than the
-    surface as fitted: a sparse corner's point carried past its neighbours' alpha
-    scale is off the face). ``flattened``: the sheet was laid flat by its own geometry,
-    and ``trim: auto`` keeps its loops (see the module docstring)."""
+    ``verdict``: the points the robust stage doubts (local outliers, junk joined to the
+    surface from beyond its neighbours' reach), which mark no data, and those it spares,
+    which do; ``seen_along`` (3,): the normal of the plane the patch was projected on (its
+    data's straight edges bound the face, :func:`past_straight_edges`). Where ``trim:
+    auto`` finds no gap but the surface runs past a straight edge by more than the loops'
+    margin, the face is the whole domain cut there. A side of the surface that ends short
+    of a straight edge by more than the margin is first carried past it
+    (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`); without such an edge,
+    a side that spared points lie more than a spacing past is carried out to them
+    (:func:`psonurbs.fitting.finish.carried_sides.reaching_points`). The face's surface is
+    then the longer one, if it is trimmed and leaves no more points off it than the
+    surface as fitted (a sparse corner's point carried past its neighbours' alpha scale
+    is off the face). ``flattened``: the sheet was laid flat by its own geometry, and
+    ``trim: auto`` keeps its loops (see the module docstring)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if flattened and mode == "auto":
         mode = True
-    edges = None
-    if seen_along is not None:  # from the points that mark the data (a stray past an edge moves no edge)
-        good = data_marks(distances, uv, mean_speeds(surface), doubted)
-        edges = straight_edges(points[good], seen_along, ALPHA)
-    if edges is not None:
-        domain = reaching_domain(surface, edges, median_spacing(points[good]))
-        if domain is not None:
-            longer = surface.restricted(*domain)
-            lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
-            longer_uv, longer_distances = closest_parameters(longer, points, (uv - lo) / width)
-            # a global search where the foot may move far: junk, and points past an edge
-            moved = ~good | np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
-            if moved.any():
-                longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
-            face = trimmed_face(longer, points, longer_uv, longer_distances, mode, doubted, edges)
-            if face.trim is not None:
-                as_fitted = trimmed_face(surface, points, uv, distances, mode, doubted, edges)
-                return face if face.points_outside <= as_fitted.points_outside else as_fitted
-    return trimmed_face(surface, points, uv, distances, mode, doubted, edges)
+    # from the points that mark the data (a stray past an edge moves no edge)
+    good = data_marks(distances, uv, mean_speeds(surface), verdict)
+    edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
+    spacing = median_spacing(points[good])
+    domain = None if edges is None else reaching_domain(surface, edges, spacing)
+    if domain is None and verdict is not None and verdict.spared is not None:
+        domain = reaching_points(surface, points, uv, verdict.spared, spacing)
+    if domain is not None:
+        longer = surface.restricted(*domain)
+        lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
+        longer_uv, longer_distances = closest_parameters(longer, points, (uv - lo) / width)
+        # a global search where the foot may move far: junk, and points past an edge
+        moved = ~good | np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
+        if moved.any():
+            longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
+        face = trimmed_face(longer, points, longer_uv, longer_distances, mode, verdict, edges)
+        if face.trim is not None:
+            as_fitted = trimmed_face(surface, points, uv, distances, mode, verdict, edges)
+            return face if face.points_outside <= as_fitted.points_outside else as_fitted
+    return trimmed_face(surface, points, uv, distances, mode, verdict, edges)
 
 
 def trimmed_face(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                 mode: str | bool, doubted: np.ndarray | None, edges: StraightEdges | None) -> Footprint:
+                 mode: str | bool, verdict: Verdict | None, edges: StraightEdges | None) -> Footprint:
     """:func:`footprint` on one surface, the data's straight ``edges`` given."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
-    found = face_contours(surface, points, uv, distances, doubted, edges)
+    found = face_contours(surface, points, uv, distances, verdict, edges)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
     polygons, cut = found.polygons, False

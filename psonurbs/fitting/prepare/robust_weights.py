@@ -36,6 +36,8 @@ at 1 sigma and 0.56 at 5.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -139,6 +141,30 @@ def doubted_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) ->
     if beyond is None or not neighbourhoods.vouches_for_most:
         return source < 0
     return (source < 0) | beyond[np.maximum(source, 0)]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The robust stage's word on each input point for the footprint, (N,) bool each (None:
+    nothing judged): what marks no data, and what marks the data however far the fit."""
+
+    doubted: np.ndarray | None  # :func:`doubted_points`
+    spared: np.ndarray | None = None  # :func:`spared_points`
+
+    @staticmethod
+    def of(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> "Verdict":
+        """The verdict on the input points, each the kept point ``source[i]`` (-1: a local outlier)."""
+        return Verdict(doubted_points(neighbourhoods, source), spared_points(neighbourhoods, source))
+
+
+def spared_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
+    """(N,) bool over the input points, each the kept point ``source[i]`` (-1: a local
+    outlier): the points the robust loss never leaves out (:attr:`Neighbourhoods.spared`:
+    vouched for, or a sparse edge's lone corner as near its neighbours' surface). None:
+    nothing was judged, or the test vouched for under half (as in :func:`trusted_points`)."""
+    if neighbourhoods is None or not neighbourhoods.vouches_for_most:
+        return None
+    return (source >= 0) & neighbourhoods.spared[np.maximum(source, 0)]
 
 
 def parameters_for_all(points: np.ndarray, trusted: np.ndarray, uv_trusted: np.ndarray) -> np.ndarray:
