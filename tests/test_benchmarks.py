@@ -325,6 +325,28 @@ def test_cover_in_spacings_and_truth_in_sigmas_on_the_inliers(tmp_path):
     assert figures["overrun_max"] < 0.6 and figures["bare_share"] == 0.0  # the patch is where the grid is
 
 
+def test_a_noise_free_cloud_with_junk_keeps_its_points_as_inliers(tmp_path):
+    """Exact points of a curved surface lie a chord off its triangulated truth, not on it:
+    they are the inliers, the junk 0.05 off is not."""
+    surface = open_surface()
+    from conftest import reference_points
+
+    rng = np.random.default_rng(0)
+    u = surface.knots_u[surface.degree_u] + (0.05 + 0.9 * rng.random(400)) * np.ptp(surface.knots_u)
+    v = surface.knots_v[surface.degree_v] + (0.05 + 0.9 * rng.random(400)) * np.ptp(surface.knots_v)
+    exact = reference_points(surface, u, v)
+    diag = np.linalg.norm(np.ptp(exact, axis=0))
+    junk = reference_points(surface, u[:8], v[:8]) + 0.05 * diag * normals(surface, u[:8], v[:8])
+    cloud = write_fit(tmp_path, surface, np.concatenate([exact, junk]))
+    vertices, triangles = surface.tessellate(241, 241)
+    np.savez(tmp_path / "truth.npz", vertices=vertices, triangles=triangles, noise=0.0, outliers=0.02)
+    chord = scorer.MeshDistance(vertices, triangles)(exact) / diag
+    assert chord.max() > 1e-9  # off the triangulation
+    figures = scorer.score(cloud, tmp_path, tmp_path / "truth.npz", stem="scan", res=RES)
+    assert figures["inliers"] == len(exact)
+    assert figures["inlier_rmse"] < 1e-6
+
+
 def test_the_boundary_leaves_out_seams_and_poles():
     closed = scorer.Surface(closed_u_surface().to_dict())
     rim, lengths = scorer.boundary(closed, 1.0)
