@@ -306,31 +306,61 @@ def test_doubted_points_on_the_surface_past_an_edge_do_not_move_the_boundary(see
     assert outer_reach(taken, 1) > outer_reach(clean, 1) + 3 * spacing
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_side_is_carried_out_to_a_spared_corner_past_it(seed):
-    """A curved sheet fitted on u, v in [0, 1]; one more point of it, the lone corner of a
-    sparse edge, lies 3 to 5 spacings past its side u = 1 (its foot held on the side). The
-    robust stage spares it: the side is carried out to it, along the surface's own
-    continuation, and the point is on the face; only doubted, it stays off it."""
-    rng = np.random.default_rng(seed)
+def curved_sheet() -> NurbsSurface:
     g = np.linspace(0, 1, 5)
     uu, vv = np.meshgrid(g, g, indexing="ij")
     net = np.stack([2.0 * uu, 1.5 * vv, 0.4 * np.sin(3 * uu) * (1 + vv)], axis=-1)
-    surface = NurbsSurface(3, 3, clamped_knots(5, 3), clamped_knots(5, 3), net, np.ones((5, 5)))
-    uv = rng.random((3000, 2))
-    spacing = float(np.sqrt(3.0 / 3000))
-    corner_uv = np.array([1.0 + rng.uniform(3, 5) * spacing / 2.0, rng.uniform(0.3, 0.7)])
-    corner = surface.restricted((0.0, corner_uv[0]), (0.0, 1.0)).evaluate(np.array([1.0]), corner_uv[1:])
+    return NurbsSurface(3, 3, clamped_knots(5, 3), clamped_knots(5, 3), net, np.ones((5, 5)))
+
+
+def with_a_point_past_side_u1(surface, uv, past, v):
+    """The points of the surface at uv (N, 2) and one more on its continuation about
+    ``past`` beyond its side u = 1 at ``v``; their feet on the surface and distances."""
+    speed = np.linalg.norm(surface.derivatives(np.array([1.0]), np.array([v]))[1])
+    corner = surface.restricted((0.0, 1.0 + past / speed), (0.0, 1.0)).evaluate(np.array([1.0]), np.array([v]))
     points = np.vstack([surface.evaluate(*uv.T), corner])
-    feet, distances = closest_parameters(surface, points, np.vstack([uv, [1.0, corner_uv[1]]]))
-    assert feet[-1, 0] == 1.0 and distances[-1] > 3 * spacing  # held on the side, past it
+    feet, distances = closest_parameters(surface, points, np.vstack([uv, [1.0, v]]))
+    return points, feet, distances
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_side_is_carried_out_to_the_spared_corner_of_a_sparse_edge(seed):
+    """A curved sheet's points thin out tenfold towards its side u = 1; one more of them, the
+    lone corner of that sparse edge, lies two median spacings past the side beyond its last
+    point (its foot held on the side), sampled like its neighbours. The robust stage spares it: the side is carried out
+    to it, along the surface's own continuation, and the point is on the face; doubted, it
+    stays off it."""
+    rng = np.random.default_rng(seed)
+    surface = curved_sheet()
+    uv = np.column_stack([1.0 - 0.9 * np.sqrt(rng.random(3000)), rng.random(3000)])  # density 10 -> 1 along u
+    spacing = footprint_module.median_spacing(surface.evaluate(*uv.T))
+    last = uv[np.argmax(uv[:, 0])]  # the edge's last point: the corner lies beyond it
+    points, feet, distances = with_a_point_past_side_u1(surface, uv, 2.0 * spacing, last[1])
+    assert feet[-1, 0] == 1.0 and distances[-1] > 1.5 * spacing  # held on the side, past it
     spared = np.ones(len(points), bool)
     face = footprint(surface, points, feet, distances, True, Verdict(np.zeros(len(points), bool), spared))
     assert face.surface is not surface and face.points_outside == 0
     assert face.distances[-1] < 1e-3 * spacing  # on the surface's own continuation
     doubted = np.arange(len(points)) == len(points) - 1
     left = footprint(surface, points, feet, distances, True, Verdict(doubted, spared & ~doubted))
-    assert left.surface is surface and left.distances[-1] > 3 * spacing
+    assert left.surface is surface and left.distances[-1] > 1.5 * spacing
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_spared_stray_apart_from_a_dense_edge_carries_no_side(seed):
+    """Uniform points of the sheet and one more on its continuation 4 to 6 spacings past
+    the side u = 1: spared (junk on the surface's continuation passes the local test), but
+    it lies apart from the data beside it, farther than the alpha shape's scale of a
+    sampling gap. No side is carried to it, and it stays off the face."""
+    rng = np.random.default_rng(seed)
+    surface = curved_sheet()
+    uv = rng.random((3000, 2))
+    spacing = footprint_module.median_spacing(surface.evaluate(*uv.T))
+    points, feet, distances = with_a_point_past_side_u1(surface, uv, rng.uniform(4, 6) * spacing,
+                                                        rng.uniform(0.3, 0.7))
+    face = footprint(surface, points, feet, distances, True, Verdict(np.zeros(len(points), bool),
+                                                                      np.ones(len(points), bool)))
+    assert face.surface is surface and face.distances[-1] > 3.5 * spacing
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

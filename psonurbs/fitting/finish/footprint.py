@@ -15,8 +15,8 @@ From the points' final parameters (their foot points on the fitted surface):
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
    and so are the points the robust stage doubts (``verdict.doubted``: junk the fit may
-   have been bent towards holds no flap of the face); a point the robust loss spares
-   (``verdict.spared``: the lone corner of a sparse edge) marks the data however far off.
+   have been bent towards holds no flap of the face); a point a side of the surface was
+   carried out to (the lone corner of a sparse edge) marks the data however far off.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -238,11 +238,12 @@ class Contours:
 
 
 def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                  verdict: Verdict | None = None, edges: StraightEdges | None = None) -> Contours | None:
+                  verdict: Verdict | None = None, edges: StraightEdges | None = None,
+                  carried: np.ndarray | None = None) -> Contours | None:
     """Steps 1-4 of the module docstring and the contours of step 5 (None: no footprint);
     ``edges``: the data's straight edges, which the face does not cross (:func:`past_straight_edges`)."""
     scale = mean_speeds(surface)
-    good = np.flatnonzero(data_marks(distances, uv, scale, verdict))
+    good = np.flatnonzero(data_marks(distances, uv, scale, verdict, carried))
     every = uv[good] * scale
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
@@ -455,13 +456,13 @@ def median_spacing(x: np.ndarray) -> float:
     return float(np.median(local_spacing(x[drawn]))) * float(np.sqrt(FOOTPRINT_POINTS / len(x)))
 
 
-def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, verdict: Verdict | None) -> np.ndarray:
-    """The points (N,) that say where the data lie: those :func:`marks_the_data` and those
-    the robust loss spares however far the fit (a sparse edge's corner), less those the
-    robust stage doubts (``verdict``)."""
+def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, verdict: Verdict | None,
+               carried: np.ndarray | None = None) -> np.ndarray:
+    """The points (N,) that say where the data lie: those :func:`marks_the_data` and those a
+    side was ``carried`` out to (indices), less those the robust stage doubts (``verdict``)."""
     marks = marks_the_data(distances, uv, scale)
-    if verdict is not None and verdict.spared is not None:
-        marks |= verdict.spared
+    if carried is not None:
+        marks[carried] = True
     if verdict is not None and verdict.doubted is not None:
         marks &= ~verdict.doubted
     return marks
@@ -639,14 +640,15 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     (N, 2) and distances (N,), and the points' distances to the trimmed surface;
     ``verdict``: the points the robust stage doubts (local outliers, junk joined to the
     surface from beyond its neighbours' reach), which mark no data, and those it spares,
-    which do; ``seen_along`` (3,): the normal of the plane the patch was projected on (its
+    which may carry a side; ``seen_along`` (3,): the normal of the plane the patch was projected on (its
     data's straight edges bound the face, :func:`past_straight_edges`). Where ``trim:
     auto`` finds no gap but the surface runs past a straight edge by more than the loops'
     margin, the face is the whole domain cut there. A side of the surface that ends short
     of a straight edge by more than the margin is first carried past it
     (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`); without such an edge,
     a side that spared points lie more than a spacing past is carried out to them
-    (:func:`psonurbs.fitting.finish.carried_sides.reaching_points`). The face's surface is
+    (:func:`psonurbs.fitting.finish.carried_sides.reaching_points`), and they mark the data
+    on the longer surface however far off its extrapolation. The face's surface is
     then the longer one, if it is trimmed and leaves no more points off it than the
     surface as fitted (a sparse corner's point carried past its neighbours' alpha scale
     is off the face). ``flattened``: the sheet was laid flat by its own geometry, and
@@ -659,9 +661,11 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     good = data_marks(distances, uv, mean_speeds(surface), verdict)
     edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     spacing = median_spacing(points[good])
-    domain = None if edges is None else reaching_domain(surface, edges, spacing)
+    domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:
-        domain = reaching_points(surface, points, uv, verdict.spared, spacing)
+        spared = verdict.spared if verdict.doubted is None else verdict.spared & ~verdict.doubted
+        reach = reaching_points(surface, points, uv, good, spared, spacing, ALPHA)
+        domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
         lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
@@ -670,7 +674,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
         moved = ~good | np.any((uv <= 0.0) | (uv >= 1.0), axis=1)
         if moved.any():
             longer_uv[moved], longer_distances[moved] = closest_parameters(longer, points[moved])
-        face = trimmed_face(longer, points, longer_uv, longer_distances, mode, verdict, edges)
+        face = trimmed_face(longer, points, longer_uv, longer_distances, mode, verdict, edges, carried)
         if face.trim is not None:
             as_fitted = trimmed_face(surface, points, uv, distances, mode, verdict, edges)
             return face if face.points_outside <= as_fitted.points_outside else as_fitted
@@ -678,10 +682,11 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
 
 
 def trimmed_face(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distances: np.ndarray,
-                 mode: str | bool, verdict: Verdict | None, edges: StraightEdges | None) -> Footprint:
+                 mode: str | bool, verdict: Verdict | None, edges: StraightEdges | None,
+                 carried: np.ndarray | None = None) -> Footprint:
     """:func:`footprint` on one surface, the data's straight ``edges`` given."""
     whole = Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
-    found = face_contours(surface, points, uv, distances, verdict, edges)
+    found = face_contours(surface, points, uv, distances, verdict, edges, carried)
     if found is None or len(found.face_points) < 0.5 * len(uv):  # a face without most of the points is not theirs
         return whole
     polygons, cut = found.polygons, False
