@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
-from .straight_edges import BEYOND, SIDES
+from .straight_edges import BEYOND, SIDES, GrownDomain
 
 STEPS = 3  # a carried side is checked this many times at most
 SPACING_NEIGHBOURS = 6  # a point's local spacing: its mean distance to this many nearest
@@ -89,7 +89,7 @@ def reaching_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, m
     ``carriers`` ((N,) bool over the points (N, 3), feet ``uv`` (N, 2)) that lie more than
     ``spacing`` past one of its sides and are :func:`joined` to the marking points
     (``marks``); None if none does, or the surface is closed or already restricted."""
-    if surface.closed_u or surface.closed_v or (surface.domain_u, surface.domain_v) != ((0, 1), (0, 1)):
+    if not GrownDomain.fits(surface):
         return None
     rows = np.flatnonzero(carriers)
     past = past_sides(surface, points[rows], uv[rows])
@@ -99,41 +99,31 @@ def reaching_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, m
     if not len(rows):
         return None
     x, at = points[rows], uv[rows]
-    spans = [[float(np.diff(np.unique(knots))[0]), float(np.diff(np.unique(knots))[-1])]
-             for knots in (surface.knots_u, surface.knots_v)]
-    ranges = [[0.0, 1.0], [0.0, 1.0]]
+    grown = GrownDomain(surface)
     current = surface
     for _ in range(STEPS):
-        before = [list(r) for r in ranges]
+        grown.start()
         _, su, sv = current.derivatives(at[:, 0], at[:, 1])
         past = past_sides(current, x, at)
-        grown = False
+        moved = False
         for i, (k, upper) in enumerate(SIDES):
             on = past[i] > -BEYOND * spacing
-            if not on.any():
-                continue
-            speed = np.linalg.norm((su if k == 0 else sv)[on], axis=1)
-            width = ranges[k][1] - ranges[k][0]
-            step = float(np.max((past[i][on] + BEYOND * spacing) / np.maximum(speed, 1e-300))) * width
-            end = 1 if upper else 0
-            step = min(step, spans[k][end] - abs(ranges[k][end] - end))
-            if step <= 1e-9 * width:
-                continue
-            ranges[k][end] += step if upper else -step
-            grown = True
-        if not grown:
+            if on.any():
+                speed = np.linalg.norm((su if k == 0 else sv)[on], axis=1)
+                need = float(np.max((past[i][on] + BEYOND * spacing) / np.maximum(speed, 1e-300)))
+                moved |= grown.grow(k, upper, need * grown.width(k))
+        if not moved:
             break
-        try:
-            longer = surface.restricted(tuple(ranges[0]), tuple(ranges[1]))
-        except ValueError:  # a rational surface's weights continued below zero: no farther
-            ranges = before
+        longer = grown.longer()
+        if longer is None:
             break
-        lo = np.array([ranges[0][0], ranges[1][0]])
-        width = np.array([ranges[0][1] - ranges[0][0], ranges[1][1] - ranges[1][0]])
-        old_lo = np.array([before[0][0], before[1][0]])
-        old_width = np.array([before[0][1] - before[0][0], before[1][1] - before[1][0]])
-        at = closest_parameters(longer, x, (old_lo + at * old_width - lo) / width)[0]
+        new_lo, new_width = domain_frame(grown.ranges)
+        old_lo, old_width = domain_frame(grown.before)
+        at = closest_parameters(longer, x, (old_lo + at * old_width - new_lo) / new_width)[0]
         current = longer
-    if ranges == [[0.0, 1.0], [0.0, 1.0]]:
-        return None
-    return Carried(((ranges[0][0], ranges[0][1]), (ranges[1][0], ranges[1][1])), rows)
+    return None if grown.domain is None else Carried(grown.domain, rows)
+
+
+def domain_frame(ranges: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
+    """The lower corner (2,) and the sides (2,) of a domain (u range, v range)."""
+    return np.array([ranges[0][0], ranges[1][0]]), np.array([ranges[0][1] - ranges[0][0], ranges[1][1] - ranges[1][0]])

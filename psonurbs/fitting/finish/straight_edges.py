@@ -180,6 +180,60 @@ def straight_edges(points: np.ndarray, normal: np.ndarray, alpha: float) -> Stra
     return StraightEdges(origin @ axes, axes, span, tuple(edges))
 
 
+class GrownDomain:
+    """A domain around [0, 1]^2 grown side by side (``ranges``: u range, v range, in the
+    surface's parameters), each end by at most its end span: an extrapolation farther
+    than its span is a guess, not the data's surface; nor is one whose weights turn
+    negative (:meth:`longer` then takes back the last growth)."""
+
+    def __init__(self, surface: NurbsSurface):
+        self.surface = surface
+        self.spans = [[float(np.diff(np.unique(knots))[0]), float(np.diff(np.unique(knots))[-1])]
+                      for knots in (surface.knots_u, surface.knots_v)]
+        self.ranges = [[0.0, 1.0], [0.0, 1.0]]
+        self.before = [[0.0, 1.0], [0.0, 1.0]]
+
+    @staticmethod
+    def fits(surface: NurbsSurface) -> bool:
+        """Whether the surface is open and on the unit square (not closed, not restricted)."""
+        return not (surface.closed_u or surface.closed_v) and \
+            (surface.domain_u, surface.domain_v) == ((0, 1), (0, 1))
+
+    def width(self, k: int) -> float:
+        return self.ranges[k][1] - self.ranges[k][0]
+
+    def grow(self, k: int, upper: bool, step: float) -> bool:
+        """Move the end ``upper`` of direction k out by ``step`` (of the surface's own
+        parameter), at most to its end span; whether it moved."""
+        end = 1 if upper else 0
+        step = min(step, self.spans[k][end] - abs(self.ranges[k][end] - end))
+        if step <= 1e-9 * self.width(k):
+            return False
+        self.ranges[k][end] += step if upper else -step
+        return True
+
+    def start(self) -> None:
+        """A round of growth begins: :meth:`longer` can take it back."""
+        self.before = [list(r) for r in self.ranges]
+
+    def longer(self) -> NurbsSurface | None:
+        """The surface on the grown domain, its end spans continued
+        (:meth:`NurbsSurface.restricted`); None, and the round taken back, if its weights
+        would turn negative."""
+        try:
+            return self.surface.restricted(tuple(self.ranges[0]), tuple(self.ranges[1]))
+        except ValueError:
+            self.ranges = self.before
+            return None
+
+    @property
+    def domain(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """(u range, v range), None if no end moved."""
+        if self.ranges == [[0.0, 1.0], [0.0, 1.0]]:
+            return None
+        return (self.ranges[0][0], self.ranges[0][1]), (self.ranges[1][0], self.ranges[1][1])
+
+
 def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float, n: int = 101
                     ) -> tuple[tuple[float, float], tuple[float, float]] | None:
     """The domain (u range, v range) around [0, 1]^2 on which an open surface reaches
@@ -203,16 +257,16 @@ def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float,
     most one end span: an extrapolation farther than its span is a guess, not the
     data's surface; nor is one whose weights turn negative.
     """
-    ranges, reach, edges = [[0.0, 1.0], [0.0, 1.0]], BEYOND * spacing, edges.untilted()
-    if edges is None or surface.closed_u or surface.closed_v or (surface.domain_u, surface.domain_v) != ((0, 1), (0, 1)):
+    reach, edges = BEYOND * spacing, edges.untilted()
+    if edges is None or not GrownDomain.fits(surface):
         return None
     t = np.linspace(0.0, 1.0, n)
-    spans = [[float(np.diff(np.unique(knots))[0]), float(np.diff(np.unique(knots))[-1])]
-             for knots in (surface.knots_u, surface.knots_v)]
+    grown = GrownDomain(surface)
     matched: dict[tuple[int, bool], int] = {}
     current = surface
     for _ in range(EXTENSION_STEPS):
-        grown, before = False, [list(r) for r in ranges]
+        grown.start()
+        moved = False
         for k, upper in SIDES:
             at = np.full(n, 1.0 if upper else 0.0)
             uv = (at, t) if k == 0 else (t, at)
@@ -231,25 +285,14 @@ def reaching_domain(surface: NurbsSurface, edges: StraightEdges, spacing: float,
             e = matched[(k, upper)]
             if np.min(past[e]) >= reach or np.any(rate[e] <= 0.0):
                 continue
-            width = ranges[k][1] - ranges[k][0]  # the current domain in the original parameter
             short = int(np.argmin(past[e]))  # where it falls shortest, carried a quarter spacing past
             need = reach - float(past[e][short])
             step = min(need / float(rate[e][short]),  # no part of the side moved farther than twice that
-                       2.0 * need / float(np.linalg.norm(outward, axis=1).max())) * width
-            end = 1 if upper else 0
-            room = spans[k][end] - abs(ranges[k][end] - end)
-            step = min(step, room)
-            if step <= 1e-9 * width:
-                continue
-            ranges[k][end] += step if upper else -step
-            grown = True
-        if not grown:
+                       2.0 * need / float(np.linalg.norm(outward, axis=1).max())) * grown.width(k)
+            moved |= grown.grow(k, upper, step)
+        if not moved:
             break
-        try:
-            current = surface.restricted(tuple(ranges[0]), tuple(ranges[1]))
-        except ValueError:  # a rational surface's weights continued below zero: no farther
-            ranges = before
+        current = grown.longer()
+        if current is None:
             break
-    if ranges == [[0.0, 1.0], [0.0, 1.0]]:
-        return None
-    return (ranges[0][0], ranges[0][1]), (ranges[1][0], ranges[1][1])
+    return grown.domain
