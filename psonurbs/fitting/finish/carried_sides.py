@@ -27,15 +27,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from psonurbs.fitting.prepare.spacing import NEIGHBOURS as SPACING_NEIGHBOURS
+from psonurbs.fitting.prepare.spacing import Spacing
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 from .straight_edges import BEYOND, SIDES, GrownDomain
 
 STEPS = 3  # a carried side is checked this many times at most
-SPACING_NEIGHBOURS = 6  # a point's local spacing: its mean distance to this many nearest
 
 
 def past_sides(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -55,7 +55,7 @@ def joined(points: np.ndarray, rows: np.ndarray, marks: np.ndarray, alpha: float
     """(M,) bool: the points ``rows`` (M,) lie within ``alpha`` spacings of the data beside
     them: the nearest other marking point (``marks`` (N,) bool over the points (N, 3)) no
     farther than ``alpha`` times the median local spacing (mean distance to the
-    ``SPACING_NEIGHBOURS`` nearest) of the nearest ones, the alpha shape's scale of a
+    ``SPACING_NEIGHBOURS`` nearest, :class:`Spacing`) of the nearest ones, the alpha shape's scale of a
     sampling gap. The last point of a sparse edge is sampled like its neighbours; a stray
     past a dense edge lies apart from them (the saddle with 5% junk: 4.2 of its
     neighbours' spacings from the nearest, a twisted strip's sparse corner 1.7)."""
@@ -63,8 +63,8 @@ def joined(points: np.ndarray, rows: np.ndarray, marks: np.ndarray, alpha: float
     k = min(SPACING_NEIGHBOURS, len(pool) - 2)
     if k < 1:
         return np.zeros(len(rows), bool)
-    tree = cKDTree(points[pool])
-    local = tree.query(points[pool], k + 1)[0][:, 1:].mean(axis=1)
+    spacing = Spacing.of(points[pool])
+    tree, local = spacing.tree, spacing.local
     distance, nearest = tree.query(points[rows], k + 1)
     other = pool[nearest] != rows[:, None]  # the point itself left out
     distance = np.where(other, distance, np.inf)
@@ -124,6 +124,6 @@ def reaching_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, m
     return None if grown.domain is None else Carried(grown.domain, rows)
 
 
-def domain_frame(ranges: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
+def domain_frame(ranges) -> tuple[np.ndarray, np.ndarray]:
     """The lower corner (2,) and the sides (2,) of a domain (u range, v range)."""
     return np.array([ranges[0][0], ranges[1][0]]), np.array([ranges[0][1] - ranges[0][0], ranges[1][1] - ranges[1][0]])

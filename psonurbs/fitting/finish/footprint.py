@@ -93,7 +93,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
-from .carried_sides import reaching_points
+from .carried_sides import domain_frame, reaching_points
 from .straight_edges import StraightEdges, reaching_domain, straight_edges
 
 NEIGHBOURS = 16
@@ -668,7 +668,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
         domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
-        lo, width = np.array([domain[0][0], domain[1][0]]), np.array([np.ptp(domain[0]), np.ptp(domain[1])])
+        lo, width = domain_frame(domain)
         longer_uv, longer_distances = closest_parameters(longer, points, (uv - lo) / width)
         # a global search where the foot may move far: junk, and points past an edge
         moved = ~good | np.any((uv <= 0.0) | (uv >= 1.0), axis=1)

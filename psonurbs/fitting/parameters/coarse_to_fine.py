@@ -20,10 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish.polish import polish
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
+from psonurbs.fitting.prepare.spacing import Spacing
 from psonurbs.geometry.basis import uniform_inner_knots
 from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -31,7 +31,6 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from .parametrisation import FILL_MARGIN, fill, fill_cells
 
 LEVEL_ROUNDS = 20  # parameter-correction rounds per level
-SPACING_NEIGHBOURS = 6  # a point's local spacing: its mean distance to this many nearest points
 BARE_SPACINGS = 3.0  # surface farther than this many local spacings from every point holds no data
 BARE_LIMIT = 0.01  # a fine net's surface this much bare: the ladder lost part of the sheet
 BARE_GRID = 48  # surface samples a side that measure it
@@ -74,30 +73,18 @@ def ladder(layout: NetLayout) -> list[Level]:
     return levels[::-1]
 
 
-def local_spacing(points: np.ndarray) -> tuple[cKDTree, np.ndarray]:
-    """A KD-tree of the points (N, 3) and each one's mean distance (N,) to its
-    ``SPACING_NEIGHBOURS`` nearest."""
-    tree = cKDTree(points)
-    k = min(SPACING_NEIGHBOURS, len(points) - 1)
-    if k < 1:
-        return tree, np.zeros(len(points))
-    distance = tree.query(points, k + 1)[0]
-    return tree, distance[:, 1:].mean(axis=1)
-
-
-def bare_share(surface: NurbsSurface, spacing: tuple[cKDTree, np.ndarray]) -> float:
+def bare_share(surface: NurbsSurface, spacing: Spacing) -> float:
     """Share of the surface (by samples of a ``BARE_GRID`` square grid of its domain)
-    farther than ``BARE_SPACINGS`` local spacings (:func:`local_spacing`) from every point."""
+    farther than ``BARE_SPACINGS`` local spacings (:class:`Spacing`) from every point."""
     t = np.linspace(0.0, 1.0, BARE_GRID)
-    tree, local = spacing
-    distance, nearest = tree.query(surface.evaluate_grid(t, t).reshape(-1, 3))
-    return float(np.mean(distance > BARE_SPACINGS * local[nearest]))
+    distance, nearest = spacing.tree.query(surface.evaluate_grid(t, t).reshape(-1, 3))
+    return float(np.mean(distance > BARE_SPACINGS * spacing.local[nearest]))
 
 
 def corrected(level: Level, layout: NetLayout, points: np.ndarray, uv: np.ndarray, smoothing: float,
-              rounds: int, spacing: tuple[cKDTree, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
+              rounds: int, spacing: Spacing | None = None) -> tuple[np.ndarray, dict]:
     """Parameters (N, 2) corrected on one level's net, and its net size, rounds, RMSE and
-    fill (with the points' ``spacing``, :func:`local_spacing`, also its bare share)."""
+    fill (with the points' ``spacing``, also its bare share)."""
     net = level.layout(layout)
     solver = RegularisedLeastSquares(net.smoothness_operator(), smoothing)
     shape = NetShape(np.ones(net.n_free), level.inner_u, level.inner_v)
@@ -134,7 +121,7 @@ def coarse_to_fine(layout: NetLayout, points: np.ndarray, uv: np.ndarray, smooth
     the truth (a sphere's band fitted directly: truth 0.29-0.34 noise sigmas against
     0.19-0.21)."""
     first, levels = uv, ladder(layout)
-    spacing = local_spacing(points)
+    spacing = Spacing.of(points)
     report = []
     for k, level in enumerate(levels):
         uv, entry = corrected(level, layout, points, uv, smoothing, rounds, spacing if k == len(levels) - 1 else None)
