@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish import footprint as footprint_module
 from psonurbs.fitting.finish.footprint import footprint, footprint_notes, well_spread
@@ -11,7 +12,7 @@ from psonurbs.fitting.prepare.robust_weights import Verdict
 from psonurbs.geometry.basis import clamped_knots
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
-from psonurbs.geometry.trim import signed_area
+from psonurbs.geometry.trim import distances_to_face, signed_area
 
 
 def plane(size=(2.0, 1.5)) -> NurbsSurface:
@@ -347,6 +348,31 @@ def test_a_side_is_carried_out_to_the_spared_corner_of_a_sparse_edge(seed):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sparse_corner_judged_a_local_outlier_is_carried_to_when_the_surface_passes_through_it(seed):
+    """The sparse edge's lone corner as above, judged a gross outlier by its neighbours
+    (another turn of the sheet nearer than its own): the side is carried out to it,
+    re-judged on the longer surface, which passes through it, and it is on the face.
+    Lifted off the surface's continuation by half a spacing, it stays off."""
+    rng = np.random.default_rng(seed)
+    surface = curved_sheet()
+    uv = np.column_stack([1.0 - 0.9 * np.sqrt(rng.random(3000)), rng.random(3000)])
+    spacing = footprint_module.median_spacing(surface.evaluate(*uv.T))
+    last = uv[np.argmax(uv[:, 0])]
+    points, feet, distances = with_a_point_past_side_u1(surface, uv, 2.0 * spacing, last[1])
+    outlying = np.arange(len(points)) == len(points) - 1
+    verdict = Verdict(outlying, ~outlying, outlying)
+    face = footprint(surface, points, feet, distances, True, verdict)
+    assert face.surface is not surface and face.points_outside == 0
+    assert face.distances[-1] < 1e-3 * spacing
+    normal = np.cross(*surface.derivatives(feet[-1:, 0], feet[-1:, 1])[1:])[0]
+    points[-1] += 0.5 * spacing * normal / np.linalg.norm(normal)
+    foot, distance = closest_parameters(surface, points[-1:], feet[-1:])
+    feet[-1], distances[-1] = foot[0], distance[0]
+    off = footprint(surface, points, feet, distances, True, verdict)
+    assert off.surface is surface and off.distances[-1] > 1.5 * spacing
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_spared_stray_apart_from_a_dense_edge_carries_no_side(seed):
     """Uniform points of the sheet and one more on its continuation 4 to 6 spacings past
     the side u = 1: spared (junk on the surface's continuation passes the local test), but
@@ -415,6 +441,32 @@ def test_a_rectangle_filling_cloud_is_fitted_to_its_edges(seed):
     boundary = result.surface.evaluate(*params.T)[:, :2]
     off_edge = np.abs(np.max(np.abs(boundary - 0.5), axis=1) - 0.5)  # past the square's edge or short of it
     assert off_edge.max() <= spacing
+
+
+def test_the_sparse_end_of_a_graded_helicoid_is_on_the_face():
+    """1.5 turns of a helicoid whose density rises twentyfold along the turns: the sparse
+    end's last points have the next turn nearer than their own neighbours, and the local
+    test reads two of them as gross outliers. Re-judged on the surface carried out to
+    them, they are on the face or beside it: every point within a fifth of the sparse
+    end's spacing of it (the surface stopped 1.6 such spacings short of them), and the
+    true sparse edge within three quarters of a spacing (1.8)."""
+    from test_fit import config
+
+    from psonurbs.fitting.pipeline import fit_points
+
+    rng = np.random.default_rng(0)
+    u = (np.sqrt(1.0 + 399.0 * rng.random(4000)) - 1.0) / 19.0  # density 1 -> 20 along the turns
+    angle, radius = 3.0 * np.pi * u, 0.3 + 0.7 * rng.random(4000)
+    truth = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), 0.3 * angle / (2 * np.pi)])
+    diagonal = float(np.linalg.norm(np.ptp(truth, axis=0)))
+    pts = truth + rng.normal(0.0, 5e-4 * diagonal, truth.shape)
+    result = fit_points(pts, config(orders=[4, 4], net_size=[12, 6], topology="open"))
+    sparse = float(np.mean(cKDTree(pts).query(pts[np.argmin(u)], 7)[0][1:]))  # the spacing at the sparse end
+    assert result.distances.max() < 0.2 * sparse
+    edge = np.column_stack([np.linspace(0.3, 1.0, 50), np.zeros(50), np.zeros(50)])  # the true sparse edge
+    uv, d = closest_parameters(result.surface, edge)
+    off = d if result.trim is None else distances_to_face(result.surface, result.trim, edge, uv, d)
+    assert off.max() < 0.75 * sparse
 
 
 def test_a_triangle_is_judged_at_most_at_a_jump_times_its_densest_corner():

@@ -21,6 +21,9 @@ parameter (its end spans' polynomials continued, :meth:`NurbsSurface.restricted`
 feet found again on the longer surface, at most ``STEPS`` times and at most one end span
 (farther is a guess, not the data's surface). The face is then the trim of the longer
 surface, on which those points mark the data (:mod:`psonurbs.fitting.finish.footprint`).
+
+A local outlier of the robust stage is carried to on the same terms, and kept only if the
+longer surface then passes through it as through the data (:func:`reaching_data`).
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from psonurbs.fitting.prepare.robust_weights import Verdict
 from psonurbs.fitting.prepare.spacing import NEIGHBOURS as SPACING_NEIGHBOURS
 from psonurbs.fitting.prepare.spacing import Spacing
 from psonurbs.geometry.nurbs import NurbsSurface
@@ -127,3 +131,29 @@ def reaching_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, m
 def domain_frame(ranges) -> tuple[np.ndarray, np.ndarray]:
     """The lower corner (2,) and the sides (2,) of a domain (u range, v range)."""
     return np.array([ranges[0][0], ranges[1][0]]), np.array([ranges[0][1] - ranges[0][0], ranges[1][1] - ranges[1][0]])
+
+
+def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, marks: np.ndarray,
+                  verdict: Verdict, spacing: float, alpha: float, band: float) -> Carried | None:
+    """:func:`reaching_points` carried to the points the robust stage spares, and to those
+    of its local outliers that the longer surface then passes within ``band`` of (the
+    distance within which a point marks the data). A local outlier is judged against its
+    k nearest neighbours; where a sheet's sparse end lies near another turn of the same
+    sheet, they are the other turn's, and the sheet's own last points read as gross
+    outliers of it (a helicoid whose density falls twentyfold: its three last points,
+    0.7 local spacings past its side). Re-judged against the fit's own continuation,
+    junk lies off it or apart from the data beside it (:func:`joined`)."""
+    spared = verdict.spared if verdict.doubted is None else verdict.spared & ~verdict.doubted
+    outlying = verdict.outlying
+    candidates = spared if outlying is None else spared | outlying
+    for _ in range(STEPS):
+        reach = reaching_points(surface, points, uv, marks, candidates, spacing, alpha)
+        rejudged = np.zeros(0, int) if reach is None or outlying is None else reach.points[outlying[reach.points]]
+        if not len(rejudged):
+            return reach
+        off = closest_parameters(surface.restricted(*reach.domain), points[rejudged])[1] > band
+        if not off.any():
+            return reach
+        candidates = candidates.copy()
+        candidates[rejudged[off]] = False
+    return reaching_points(surface, points, uv, marks, spared, spacing, alpha)

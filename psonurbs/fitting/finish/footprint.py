@@ -77,7 +77,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
-from psonurbs.fitting.prepare.robust_weights import Verdict, biweights
+from psonurbs.fitting.prepare.robust_weights import CUTOFF_SIGMAS, Verdict, biweights, residual_scale
 from psonurbs.geometry.contour import contours, simplify_closed
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
@@ -93,7 +93,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
-from .carried_sides import domain_frame, reaching_points
+from .carried_sides import domain_frame, reaching_data
 from .straight_edges import StraightEdges, reaching_domain, straight_edges
 
 NEIGHBOURS = 16
@@ -461,10 +461,10 @@ def data_marks(distances: np.ndarray, uv: np.ndarray, scale: np.ndarray, verdict
     """The points (N,) that say where the data lie: those :func:`marks_the_data` and those a
     side was ``carried`` out to (indices), less those the robust stage doubts (``verdict``)."""
     marks = marks_the_data(distances, uv, scale)
-    if carried is not None:
-        marks[carried] = True
     if verdict is not None and verdict.doubted is not None:
         marks &= ~verdict.doubted
+    if carried is not None:
+        marks[carried] = True
     return marks
 
 
@@ -646,12 +646,14 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     margin, the face is the whole domain cut there. A side of the surface that ends short
     of a straight edge by more than the margin is first carried past it
     (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`); without such an edge,
-    a side that spared points lie more than a spacing past is carried out to them
-    (:func:`psonurbs.fitting.finish.carried_sides.reaching_points`), and they mark the data
+    a side that spared points (or local outliers it then passes through) lie more than a
+    spacing past is carried out to them
+    (:func:`psonurbs.fitting.finish.carried_sides.reaching_data`), and they mark the data
     on the longer surface however far off its extrapolation. The face's surface is
     then the longer one, if it is trimmed and leaves no more points off it than the
-    surface as fitted (a sparse corner's point carried past its neighbours' alpha scale
-    is off the face). ``flattened``: the sheet was laid flat by its own geometry, and
+    surface as fitted: farther from the face than a point that marks the data may lie
+    (the robust cut-off, or ``NEAR_EXACT`` spacings; a point past the fitted surface's
+    side is as far off it as the side is short of it, whatever the trim). ``flattened``: the sheet was laid flat by its own geometry, and
     ``trim: auto`` keeps its loops (see the module docstring)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
@@ -661,10 +663,10 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     good = data_marks(distances, uv, mean_speeds(surface), verdict)
     edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     spacing = median_spacing(points[good])
+    band = max(CUTOFF_SIGMAS * residual_scale(distances), NEAR_EXACT * spacing)  # a point this near marks the data
     domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:
-        spared = verdict.spared if verdict.doubted is None else verdict.spared & ~verdict.doubted
-        reach = reaching_points(surface, points, uv, good, spared, spacing, ALPHA)
+        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, band)
         domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
@@ -677,7 +679,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
         face = trimmed_face(longer, points, longer_uv, longer_distances, mode, verdict, edges, carried)
         if face.trim is not None:
             as_fitted = trimmed_face(surface, points, uv, distances, mode, verdict, edges)
-            return face if face.points_outside <= as_fitted.points_outside else as_fitted
+            return face if np.sum(face.distances > band) <= np.sum(as_fitted.distances > band) else as_fitted
     return trimmed_face(surface, points, uv, distances, mode, verdict, edges)
 
 

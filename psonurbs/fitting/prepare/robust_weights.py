@@ -150,11 +150,13 @@ class Verdict:
 
     doubted: np.ndarray | None  # :func:`doubted_points`
     spared: np.ndarray | None = None  # :func:`spared_points`
+    outlying: np.ndarray | None = None  # the local outliers (among the doubted)
 
     @staticmethod
     def of(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> "Verdict":
         """The verdict on the input points, each the kept point ``source[i]`` (-1: a local outlier)."""
-        return Verdict(doubted_points(neighbourhoods, source), spared_points(neighbourhoods, source))
+        return Verdict(doubted_points(neighbourhoods, source), spared_points(neighbourhoods, source),
+                       None if neighbourhoods is None else source < 0)
 
 
 def spared_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
