@@ -651,22 +651,27 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     (:func:`psonurbs.fitting.finish.carried_sides.reaching_data`), and they mark the data
     on the longer surface however far off its extrapolation. The face's surface is
     then the longer one, if it is trimmed and leaves no more points off it than the
-    surface as fitted: farther from the face than a point that marks the data may lie
-    (the robust cut-off, or ``NEAR_EXACT`` spacings; a point past the fitted surface's
-    side is as far off it as the side is short of it, whatever the trim). ``flattened``: the sheet was laid flat by its own geometry, and
+    surface as fitted: outside its loops when cut at straight edges, farther than a
+    point that marks the data may lie (the robust cut-off, or ``NEAR_EXACT`` spacings)
+    when carried to points (a point past the fitted surface's side is as far off it as
+    the side is short of it, whatever the trim). ``flattened``: the sheet was laid flat by its own geometry, and
     ``trim: auto`` keeps its loops (see the module docstring)."""
     if mode is False or len(uv) < 4:
         return Footprint(surface, None, np.asarray(distances, float), 0, 0.0, 0, 0, 0, 0.0)
     if flattened and mode == "auto":
         mode = True
     # from the points that mark the data (a stray past an edge moves no edge)
-    good = data_marks(distances, uv, mean_speeds(surface), verdict)
-    edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
+    scale = mean_speeds(surface)
+    good = data_marks(distances, uv, scale, verdict)
     spacing = median_spacing(points[good])
     band = max(CUTOFF_SIGMAS * residual_scale(distances), NEAR_EXACT * spacing)  # a point this near marks the data
+    if verdict is not None:
+        verdict = verdict.rejudged(distances, band)
+        good = data_marks(distances, uv, scale, verdict)
+    edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:
-        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, band)
+        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, band, scale)
         domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
@@ -679,7 +684,11 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
         face = trimmed_face(longer, points, longer_uv, longer_distances, mode, verdict, edges, carried)
         if face.trim is not None:
             as_fitted = trimmed_face(surface, points, uv, distances, mode, verdict, edges)
-            return face if np.sum(face.distances > band) <= np.sum(as_fitted.distances > band) else as_fitted
+            if carried is None:  # cut at straight edges: no more points off the trimmed face
+                longer_kept = face.points_outside <= as_fitted.points_outside
+            else:  # carried to points past a side: off the fitted face whatever its trim, so by distance
+                longer_kept = np.sum(face.distances > band) <= np.sum(as_fitted.distances > band)
+            return face if longer_kept else as_fitted
     return trimmed_face(surface, points, uv, distances, mode, verdict, edges)
 
 

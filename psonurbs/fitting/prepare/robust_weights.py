@@ -36,7 +36,7 @@ at 1 sigma and 0.56 at 5.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -157,6 +157,16 @@ class Verdict:
         """The verdict on the input points, each the kept point ``source[i]`` (-1: a local outlier)."""
         return Verdict(doubted_points(neighbourhoods, source), spared_points(neighbourhoods, source),
                        None if neighbourhoods is None else source < 0)
+
+    def rejudged(self, distances: np.ndarray, band: float) -> "Verdict":
+        """The verdict less the local outliers that a fit passes within ``band`` of
+        (``distances`` (N,) to it): judged against their k nearest neighbours, the last
+        points of a sheet's sparse end read as outliers of another turn of the sheet
+        nearer than their own neighbours; the fit, which never saw them, passes through them."""
+        if self.outlying is None or self.doubted is None:
+            return self
+        on = self.outlying & (distances <= band)
+        return replace(self, doubted=self.doubted & ~on, outlying=self.outlying & ~on)
 
 
 def spared_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
