@@ -7,7 +7,6 @@ import pytest
 from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish import footprint as footprint_module
-from psonurbs.fitting.finish.carried_sides import joined
 from psonurbs.fitting.finish.footprint import footprint, footprint_notes, well_spread
 from psonurbs.fitting.prepare.robust_weights import Verdict
 from psonurbs.geometry.basis import clamped_knots
@@ -391,32 +390,6 @@ def test_local_outliers_the_fit_passes_through_mark_the_data(seed):
     distances[outlying] += 30 * sigma
     off = footprint(surface, surface.evaluate(*uv.T), uv, distances, True, verdict)
     assert outer_reach(off, 1) == pytest.approx(0.8, abs=spacing)
-
-
-def test_a_sparse_corner_is_joined_to_its_own_sheet_not_to_a_denser_turn_nearer_in_space():
-    """A sparse sheet's points (a jittered grid of step 0.1 ending at x = 1) and a corner
-    point 1.5 steps past its edge; another turn of the sheet 0.12 above it, five times
-    denser, reaching on past the edge. Among the corner's nearest points in space the
-    other turn's (their feet a turn away along the sheet) are passed over, and it is
-    joined to its own sheet. Taken as its neighbours, the denser turn's spacing makes
-    the sparse sheet's gap look like a stray's."""
-    rng = np.random.default_rng(4)
-    surface = plane()  # 2 x 1.5: u = x / 2, v = y / 1.5
-    gx, gy = np.meshgrid(np.arange(0.3, 1.01, 0.1), np.arange(0.2, 1.31, 0.1), indexing="ij")
-    own = np.column_stack([gx.ravel(), gy.ravel()]) + rng.uniform(-0.01, 0.01, (gx.size, 2))
-    tx, ty = np.meshgrid(np.arange(0.3, 1.41, 0.02), np.arange(0.2, 1.31, 0.02), indexing="ij")
-    turn = np.column_stack([tx.ravel(), ty.ravel()])
-    corner = np.array([[1.15, 0.75]])
-    points = np.vstack([np.column_stack([own, np.zeros(len(own))]),
-                        np.column_stack([turn, np.full(len(turn), 0.12)]),
-                        np.column_stack([corner, np.zeros(1)])])
-    far_turn = np.column_stack([0.05 + 0.1 * rng.random(len(turn)), turn[:, 1] / 1.5])  # a turn away along u
-    feet = np.vstack([own / [2.0, 1.5], far_turn, corner / [2.0, 1.5]])
-    marks = np.arange(len(points)) < len(points) - 1
-    rows = np.array([len(points) - 1])
-    assert joined(surface, points, feet, rows, marks, footprint_module.ALPHA, np.array([2.0, 1.5]))[0]
-    feet[len(own):-1] = turn / [2.0, 1.5]  # the other turn's feet beside its own
-    assert not joined(surface, points, feet, rows, marks, footprint_module.ALPHA, np.array([2.0, 1.5]))[0]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

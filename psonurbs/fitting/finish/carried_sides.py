@@ -40,7 +40,6 @@ from psonurbs.geometry.projection import closest_parameters
 from .straight_edges import BEYOND, SIDES, GrownDomain
 
 STEPS = 3  # a carried side is checked this many times at most
-SHEET_CANDIDATES = 4  # times the spacing's neighbours: the nearest marks searched for those on a point's own sheet
 
 
 def past_sides(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -56,41 +55,27 @@ def past_sides(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray) -> np.
     return out
 
 
-def joined(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, rows: np.ndarray, marks: np.ndarray,
-           alpha: float, scale: np.ndarray) -> np.ndarray:
+def joined(points: np.ndarray, rows: np.ndarray, marks: np.ndarray, alpha: float) -> np.ndarray:
     """(M,) bool: the points ``rows`` (M,) lie within ``alpha`` spacings of the data beside
-    them: the nearest other marking point (``marks`` (N,) bool over the points (N, 3), feet
-    ``uv`` (N, 2)) no farther than ``alpha`` times the median local spacing (mean distance
-    to the ``SPACING_NEIGHBOURS`` nearest, :class:`Spacing`) of the nearest ones, the alpha
-    shape's scale of a sampling gap. The last point of a sparse edge is sampled like its
-    neighbours; a stray past a dense edge lies apart from them (the saddle with 5% junk:
-    4.2 of its neighbours' spacings from the nearest, a twisted strip's sparse corner 1.7).
-
-    The data beside a point are on its own sheet: they are sought among the marks whose
-    feet are nearest its foot along the surface (at its mean speeds ``scale`` (2,)), and a
-    mark whose foot lies farther from the point's, at the speeds there, than twice their
-    distance in space is on another turn of the sheet and passed over (a tight helicoid's
-    sparse end has the next turn nearer, and denser, than its own neighbours)."""
+    them: the nearest other marking point (``marks`` (N,) bool over the points (N, 3)) no
+    farther than ``alpha`` times the median local spacing (mean distance to the
+    ``SPACING_NEIGHBOURS`` nearest, :class:`Spacing`) of the nearest ones, the alpha shape's scale of a
+    sampling gap. The last point of a sparse edge is sampled like its neighbours; a stray
+    past a dense edge lies apart from them (the saddle with 5% junk: 4.2 of its
+    neighbours' spacings from the nearest, a twisted strip's sparse corner 1.7)."""
     pool = np.flatnonzero(marks)
     k = min(SPACING_NEIGHBOURS, len(pool) - 2)
     if k < 1:
         return np.zeros(len(rows), bool)
-    local = Spacing.of(points[pool]).local
-    _, nearest = Spacing.of(uv[pool] * scale).tree.query(uv[rows] * scale, min(SHEET_CANDIDATES * k, len(pool)))
-    distance = np.linalg.norm(points[pool[nearest]] - points[rows, None, :], axis=2)
-    _, su, sv = surface.derivatives(uv[rows, 0], uv[rows, 1])
-    speeds = np.column_stack([np.linalg.norm(su, axis=1), np.linalg.norm(sv, axis=1)])
-    along = np.linalg.norm((uv[pool[nearest]] - uv[rows, None, :]) * speeds[:, None, :], axis=2)
-    beside = (pool[nearest] != rows[:, None]) & (along <= 2.0 * distance)  # the point itself left out
-    distance = np.where(beside, distance, np.inf)
+    spacing = Spacing.of(points[pool])
+    tree, local = spacing.tree, spacing.local
+    distance, nearest = tree.query(points[rows], k + 1)
+    other = pool[nearest] != rows[:, None]  # the point itself left out
+    distance = np.where(other, distance, np.inf)
     order = np.argsort(distance, axis=1)[:, :k]
     gap = np.take_along_axis(distance, order[:, :1], axis=1)[:, 0]
-    found = np.isfinite(np.take_along_axis(distance, order, axis=1))
-    count = np.maximum(found.sum(axis=1), 1)
-    spacings = np.sort(np.where(found, local[np.take_along_axis(nearest, order, axis=1)], np.inf), axis=1)
-    rank = np.arange(len(rows))
-    typical = 0.5 * (spacings[rank, (count - 1) // 2] + spacings[rank, count // 2])  # their median
-    return np.isfinite(gap) & (gap <= alpha * typical)
+    beside = np.median(local[np.take_along_axis(nearest, order, axis=1)], axis=1)
+    return gap <= alpha * beside
 
 
 @dataclass(frozen=True)
@@ -103,18 +88,18 @@ class Carried:
 
 
 def reaching_points(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, marks: np.ndarray,
-                    carriers: np.ndarray, spacing: float, alpha: float, scale: np.ndarray) -> Carried | None:
+                    carriers: np.ndarray, spacing: float, alpha: float) -> Carried | None:
     """The domain around [0, 1]^2 on which an open surface holds the feet of the
     ``carriers`` ((N,) bool over the points (N, 3), feet ``uv`` (N, 2)) that lie more than
     ``spacing`` past one of its sides and are :func:`joined` to the marking points
-    (``marks``; ``scale`` (2,): the surface's mean speeds); None if none does, or the surface is closed or already restricted."""
+    (``marks``); None if none does, or the surface is closed or already restricted."""
     if not GrownDomain.fits(surface):
         return None
     rows = np.flatnonzero(carriers)
     past = past_sides(surface, points[rows], uv[rows])
     rows = rows[past.max(axis=0) > spacing]
     if len(rows):
-        rows = rows[joined(surface, points, uv, rows, marks, alpha, scale)]
+        rows = rows[joined(points, rows, marks, alpha)]
     if not len(rows):
         return None
     x, at = points[rows], uv[rows]
@@ -149,10 +134,10 @@ def domain_frame(ranges) -> tuple[np.ndarray, np.ndarray]:
 
 
 def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, marks: np.ndarray,
-                  verdict: Verdict, spacing: float, alpha: float, band: float, scale: np.ndarray) -> Carried | None:
+                  verdict: Verdict, spacing: float, alpha: float, band: float) -> Carried | None:
     """:func:`reaching_points` carried to the points the robust stage spares, and to those
     of its local outliers that the longer surface then passes within ``band`` of (the
-    distance within which a point marks the data). A local outlier is judged against its
+    fit's noise: the distance within which a local outlier is taken for data). A local outlier is judged against its
     k nearest neighbours; where a sheet's sparse end lies near another turn of the same
     sheet, they are the other turn's, and the sheet's own last points read as gross
     outliers of it (a helicoid whose density falls twentyfold: its three last points,
@@ -162,7 +147,7 @@ def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, mar
     outlying = verdict.outlying
     candidates = spared if outlying is None else spared | outlying
     for _ in range(STEPS):
-        reach = reaching_points(surface, points, uv, marks, candidates, spacing, alpha, scale)
+        reach = reaching_points(surface, points, uv, marks, candidates, spacing, alpha)
         rejudged = np.zeros(0, int) if reach is None or outlying is None else reach.points[outlying[reach.points]]
         if not len(rejudged):
             return reach
@@ -171,4 +156,4 @@ def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, mar
             return reach
         candidates = candidates.copy()
         candidates[rejudged[off]] = False
-    return reaching_points(surface, points, uv, marks, spared, spacing, alpha, scale)
+    return reaching_points(surface, points, uv, marks, spared, spacing, alpha)

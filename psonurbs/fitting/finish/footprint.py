@@ -112,6 +112,7 @@ GAP_SAMPLES = 40_000  # surface samples outside the face that measure its widest
 EDGE_SAMPLES = 400  # samples along each edge of the surface that measure how far it runs past the data
 EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: a strip of surface without data
 NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
+REJUDGED_SIGMAS = 3.0  # a local outlier the fit passes this near (in its residuals' sigmas) is data
 
 
 @dataclass(frozen=True)
@@ -664,14 +665,16 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     scale = mean_speeds(surface)
     good = data_marks(distances, uv, scale, verdict)
     spacing = median_spacing(points[good])
-    band = max(CUTOFF_SIGMAS * residual_scale(distances), NEAR_EXACT * spacing)  # a point this near marks the data
+    sigma = residual_scale(distances)
+    band = max(CUTOFF_SIGMAS * sigma, NEAR_EXACT * spacing)  # a point this near marks the data
+    within = REJUDGED_SIGMAS * sigma  # a local outlier this near is data
     if verdict is not None:
-        verdict = verdict.rejudged(distances, band)
+        verdict = verdict.rejudged(distances, within)
         good = data_marks(distances, uv, scale, verdict)
     edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:
-        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, band, scale)
+        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, within)
         domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
