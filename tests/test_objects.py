@@ -95,6 +95,27 @@ def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
     assert longer.shape == s.shape
 
 
+def test_an_end_span_much_shorter_than_the_reach_is_extended_about_the_reach_not_flung_off():
+    """A flat sheet whose first span in u is a hundredth of the domain (a dense net's
+    end): its polynomial continued over the reach (ten such spans), the edge would land 5
+    units off a sheet of side 1 where it was sent 0.1. The reach is halved until the new
+    edge lies within three reaches of where the surface ended; it still reaches out."""
+    from psonurbs.geometry.basis import clamped_knots
+    from psonurbs.geometry.nurbs import NurbsSurface
+    from psonurbs.geometry.projection import closest_parameters
+    from psonurbs.objects.join import extended_face
+
+    rows = np.array([0.0, 0.003, 0.01, 0.2, 0.4, 0.6, 0.8, 1.0])
+    uu, vv = np.meshgrid(rows, np.linspace(0.0, 1.0, 4), indexing="ij")
+    knots_u = np.array([0.0, 0, 0, 0, 0.01, 0.3, 0.5, 0.7, 1, 1, 1, 1])
+    sheet = NurbsSurface(3, 3, knots_u, clamped_knots(4, 3), np.stack([uu, vv, 0.0 * uu], -1), np.ones((8, 4)))
+    grown = extended_face(sheet, 0.1)
+    t = np.linspace(0.15, 0.85, 25)  # along the new edge, within the old v range
+    off = closest_parameters(sheet, grown.evaluate(np.zeros_like(t), t))[1]
+    assert off.max() <= 0.3
+    assert off.min() >= 0.05
+
+
 def test_a_closed_direction_goes_to_opencascade_as_a_periodic_b_spline():
     pytest.importorskip("OCP")
     from conftest import closed_u_surface

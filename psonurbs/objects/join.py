@@ -38,6 +38,7 @@ EXTEND = 0.05  # of the object's diagonal: how far a face reaches past its data
 EXTEND_SPACINGS = 8.0  # ... and at least this many point spacings
 HELD_DENSITY = 0.25  # a piece is kept when its points per area reach this share of the faces'
 EDGE_SAMPLES = 48  # points per edge of a trim loop read back from OpenCASCADE
+FLARE = 3.0  # an extended end's edge lies at most this many reaches from where the surface ended
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,9 @@ class Joined:
 def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
     """The surface with each open direction extended by ``reach`` in space at both ends
     (in parameters: reach over the mean speed along that end's edge), halved until its
-    weights stay positive."""
+    weights stay positive and no point of an end's new edge lies farther than
+    ``FLARE`` reaches from the old one: the end span's polynomial, continued over many
+    of its own lengths (a dense net's short end span), flares far past where it was sent."""
     ranges = []
     for k, closed in enumerate((surface.closed_u, surface.closed_v)):
         if closed:
@@ -87,12 +90,35 @@ def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
             speed = np.linalg.norm(surface.derivatives(u, v)[1 + k], axis=1).mean()
             ends.append(reach / max(speed, 1e-12))
         ranges.append((-ends[0], 1.0 + ends[1]))
+    t = np.linspace(0.0, 1.0, 49)
     for _ in range(6):
         try:
-            return surface.restricted(*ranges)
+            grown = surface.restricted(*ranges)
         except ValueError:  # the weights' extrapolation turned negative: reach less far
             ranges = [(0.5 * a, 1.0 + 0.5 * (b - 1.0)) for a, b in ranges]
+            continue
+        flaring = _flaring(grown, ranges, t, FLARE * reach)
+        if not any(flaring):
+            return grown
+        ranges = [(0.5 * a if flaring[2 * k] else a, 1.0 + 0.5 * (b - 1.0) if flaring[2 * k + 1] else b)
+                  for k, (a, b) in enumerate(ranges)]
     return surface
+
+
+def _flaring(grown: NurbsSurface, ranges, t: np.ndarray, most: float) -> list[bool]:
+    """For each end (u = 0, u = 1, v = 0, v = 1) of the grown surface, whether its edge
+    lies farther than ``most`` from where the surface ended (their points at the same
+    parameter across, ``t`` (M,) of them)."""
+    out = []
+    for k, (lo, hi) in enumerate(ranges):
+        for new, old in ((0.0, -lo / (hi - lo)), (1.0, (1.0 - lo) / (hi - lo))):
+            if abs(new - old) < 1e-12:
+                out.append(False)
+                continue
+            ends = [grown.evaluate(*((np.full_like(t, x), t) if k == 0 else (t, np.full_like(t, x))))
+                    for x in (new, old)]
+            out.append(bool(np.max(np.linalg.norm(ends[0] - ends[1], axis=1)) > most))
+    return out
 
 
 def _count(shape, kind) -> int:
