@@ -90,14 +90,14 @@ def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
             speed = np.linalg.norm(surface.derivatives(u, v)[1 + k], axis=1).mean()
             ends.append(reach / max(speed, 1e-12))
         ranges.append((-ends[0], 1.0 + ends[1]))
-    t = np.linspace(0.0, 1.0, 49)
+    across = np.linspace(0.0, 1.0, 49)
     for _ in range(6):
         try:
             grown = surface.restricted(*ranges)
         except ValueError:  # the weights' extrapolation turned negative: reach less far
             ranges = [(0.5 * a, 1.0 + 0.5 * (b - 1.0)) for a, b in ranges]
             continue
-        flaring = _flaring(grown, ranges, t, FLARE * reach)
+        flaring = _flaring(grown, ranges, across, FLARE * reach)
         if not any(flaring):
             return grown
         ranges = [(0.5 * a if flaring[2 * k] else a, 1.0 + 0.5 * (b - 1.0) if flaring[2 * k + 1] else b)

@@ -137,12 +137,13 @@ def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, mar
                   verdict: Verdict, spacing: float, alpha: float, band: float) -> Carried | None:
     """:func:`reaching_points` carried to the points the robust stage spares, and to those
     of its local outliers that the longer surface then passes within ``band`` of (the
-    fit's noise: the distance within which a local outlier is taken for data). A local outlier is judged against its
-    k nearest neighbours; where a sheet's sparse end lies near another turn of the same
-    sheet, they are the other turn's, and the sheet's own last points read as gross
-    outliers of it (a helicoid whose density falls twentyfold: its three last points,
-    0.7 local spacings past its side). Re-judged against the fit's own continuation,
-    junk lies off it or apart from the data beside it (:func:`joined`)."""
+    fit's noise: the distance within which a local outlier is taken for data). A local
+    outlier is judged against its k nearest neighbours; where a sheet's sparse end lies
+    near another turn of the same sheet, they are the other turn's, and the sheet's own
+    last points read as gross outliers of it (a helicoid whose density falls twentyfold:
+    its two last points, 6.1 and 6.5 median spacings past its side). Re-judged against
+    the fit's own continuation, junk lies off it or apart from the data beside it
+    (:func:`joined`)."""
     spared = verdict.spared if verdict.doubted is None else verdict.spared & ~verdict.doubted
     outlying = verdict.outlying
     candidates = spared if outlying is None else spared | outlying

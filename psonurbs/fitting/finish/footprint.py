@@ -668,9 +668,9 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     sigma = residual_scale(distances)
     band = max(CUTOFF_SIGMAS * sigma, NEAR_EXACT * spacing)  # a point this near marks the data
     within = REJUDGED_SIGMAS * sigma  # a local outlier this near is data
-    if verdict is not None:
-        verdict = verdict.rejudged(distances, within)
-        good = data_marks(distances, uv, scale, verdict)
+    rejudged = None if verdict is None else verdict.rejudged(distances, within)
+    if rejudged is not verdict:  # local outliers the fit passes through mark the data too
+        verdict, good = rejudged, data_marks(distances, uv, scale, rejudged)
     edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:

@@ -162,11 +162,12 @@ class Verdict:
         """The verdict less the local outliers that a fit passes within ``band`` of
         (``distances`` (N,) to it): judged against their k nearest neighbours, the last
         points of a sheet's sparse end read as outliers of another turn of the sheet
-        nearer than their own neighbours; the fit, which never saw them, passes through them."""
+        nearer than their own neighbours; the fit, which never saw them, passes through them.
+        The verdict itself where none is."""
         if self.outlying is None or self.doubted is None:
             return self
         on = self.outlying & (distances <= band)
-        return replace(self, doubted=self.doubted & ~on, outlying=self.outlying & ~on)
+        return replace(self, doubted=self.doubted & ~on, outlying=self.outlying & ~on) if on.any() else self
 
 
 def spared_points(neighbourhoods: Neighbourhoods | None, source: np.ndarray) -> np.ndarray | None:
