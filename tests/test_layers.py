@@ -216,6 +216,17 @@ def test_no_folder_of_the_package_holds_more_than_twelve_modules():
     assert not crowded, f"folders over {MAX_MODULES} modules: {crowded}"
 
 
+def test_every_package_folder_is_installed():
+    """A plain ``pip install .`` ships the packages pyproject.toml lists, nothing else: a
+    folder left off is missing from every install but an editable one."""
+    import tomllib
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {".".join(init.parent.relative_to(REPO).parts) for init in (REPO / "psonurbs").rglob("__init__.py")}
+    folders |= {"psonurbs." + ".".join(init.parent.relative_to(REPO).parts) for init in (REPO / "cli").rglob("__init__.py")}
+    assert folders - listed == set(), "package folders pyproject.toml does not install"
+    assert listed - folders == set(), "packages pyproject.toml lists that have no folder"
+
+
 def test_the_cycle_check_sees_a_circle_through_a_function_level_import(tmp_path):
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "__init__.py").write_text("")
