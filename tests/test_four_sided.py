@@ -139,6 +139,24 @@ def test_an_annular_sector_maps_its_arcs_and_radii_onto_the_squares_sides():
     assert fill(unit_square(x), 16) < 0.8
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_the_inner_corners_of_a_c_shaped_sector_are_found(seed):
+    """The inner arc of a C (an annular sector of radii 0.3 and 1 over 270 degrees: a
+    helicoid laid flat) curves away from the chord its corners are read along: they turn
+    42 to 49 degrees at h, one under ``CORNER`` on five draws of six. With the concave
+    side's own turning added back they read 59 to 69 (the ragged sides' peaks 18 at most),
+    all four are found, and the map puts the angle on u and the radius on v (the
+    flattening's rectangle leaves a quarter of the square empty)."""
+    x, truth = annular_sector(degrees=270.0, radii=(0.3, 1.0), seed=seed)
+    square, turns = square_map(x)
+    assert square is not None, turns
+    uv = square.place(x)
+    (u_max, u_rms, u_is), (v_max, v_rms, v_is) = affine_misfit(uv, truth)
+    assert (u_is, v_is) == (0, 1)
+    assert u_max < 0.03 and u_rms < 0.006 and v_max < 0.08 and v_rms < 0.015, (u_max, u_rms, v_max, v_rms)
+    assert fill(uv, 16) > 0.97 and fill(unit_square(x), 16) < 0.75
+
+
 def test_a_cone_sectors_first_parameters_are_its_angle_and_its_ruling():
     """A 270-degree cone sector unrolls to an annular sector; its first parameters are its
     angle and its position along the ruling, each up to an affine map (to 2% of the range

@@ -15,8 +15,8 @@ circles as its parameter lines). For plane positions x (M, 2) of the embedded po
    length h before the vertex to the chord over h after it. The corners are the peaks
    turning at least ``CORNER`` in magnitude (each the largest within h), each placed
    where its two sides, extrapolated, meet (:func:`corner_place`). Four-sided: exactly
-   four peaks, all convex (a corner where the data thin out may turn less at h, and is
-   measured at its own spacing: :func:`corners`).
+   four peaks, all convex (a corner beside a concave side, or where the data thin out,
+   may turn less at h: :func:`corners`).
 3. **Boundary values** (:func:`boundary_values`): each side a curve from its corner to
    the next (the boundary smoothed over a spacing), mapped by its arc length onto a side
    of the square, u along the pair of opposite sides that are longer; each boundary
@@ -65,6 +65,7 @@ SCALE = 6.0  # local spacings of the boundary: the arc length h of the chords th
 # and a right-angled corner by 55 to 80 (it is rounded within the chords).
 CORNER = np.radians(45.0)
 SIDES = 4
+SIDE_OFFSET = 1.5  # h: a side's own turning is read this far from a corner (its chords clear of the corner)
 NECK = 1.5  # local spacings: a boundary coming back this close to itself ...
 DETOUR = 2.0 * SCALE  # ... after at most this long a detour (a fin or a notch) is cut there
 
@@ -114,12 +115,13 @@ class SmoothLoop:
         s = np.asarray(s, float) % self.length
         return np.column_stack([np.interp(s, self.t, self.curve[:, k]) for k in range(2)])
 
-    def turning(self, h: float | np.ndarray) -> np.ndarray:
-        """(B,) the turning (radians, positive to the left) at each vertex: from the chord
-        of the smoothed curve over arc length h (one, or (B,): each vertex's own) before it
-        to the chord over h after it."""
-        here = self.at(self.s)
-        before, after = here - self.at(self.s - h), self.at(self.s + h) - here
+    def turning(self, h: float | np.ndarray, s: np.ndarray | None = None) -> np.ndarray:
+        """(B,) the turning (radians, positive to the left) at each vertex (or at arc
+        lengths ``s`` (B,) along the polygon): from the chord of the smoothed curve over
+        arc length h (one, or (B,): each vertex's own) before it to the chord over h after it."""
+        s = self.s if s is None else s
+        here = self.at(s)
+        before, after = here - self.at(s - h), self.at(s + h) - here
         turn = np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])
         return (turn + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -274,7 +276,15 @@ def corners(loop: SmoothLoop, h: float, spacing: np.ndarray | None = None) -> Co
     gradient hid: 29 to 43 degrees). So where only three peaks turn ``CORNER``, the largest
     other convex peak turning at least half of it is the fourth if, measured at ``SCALE``
     of its own local spacing, it turns ``CORNER`` too. Where the sampling is even, its
-    scale is h, and a peak that turns less is no corner there either."""
+    scale is h, and a peak that turns less is no corner there either.
+
+    Where the corners are still fewer than four, the convex peaks turning at least half of
+    ``CORNER`` complete them if they turn ``CORNER`` with a concave side's own turning
+    added back (:func:`concave_added`, at h or at their own scale) and make exactly four:
+    the chord from a corner along a side that curves inwards (the inner arc of a C, a
+    helicoid laid flat) turns away with that side, and a right angle there read 35 to 49
+    degrees. Only the concave part counts: a convex side, or the next corner read across
+    a short side, adds nothing."""
     turn = loop.turning(h)
     size = np.abs(turn)
     index = np.arange(len(size))
@@ -284,15 +294,31 @@ def corners(loop: SmoothLoop, h: float, spacing: np.ndarray | None = None) -> Co
         near = np.minimum(gap, loop.length - gap) <= h
         if size[i] >= size[near].max() and not np.any(size[near & (index < i)] == size[i]):
             (peaks if size[i] >= CORNER else weaker).append(i)
+    own = np.full(len(size), h) if spacing is None else np.maximum(SCALE * np.asarray(spacing, float), h)
     if spacing is not None and len(peaks) == SIDES - 1 and np.all(turn[peaks] > 0):
-        at_own_scale = loop.turning(np.maximum(SCALE * np.asarray(spacing, float), h))
+        at_own_scale = loop.turning(own)
         rounded = [i for i in weaker if turn[i] > 0 and at_own_scale[i] >= CORNER]
         if rounded:
             peaks = sorted(peaks + [max(rounded, key=lambda i: turn[i])])
+    convex = [i for i in weaker if turn[i] > 0 and i not in peaks]
+    if len(peaks) < SIDES and convex:
+        at = loop.s[convex]
+        reading = np.max([concave_added(loop, at, scale) for scale in (np.full(len(at), h), own[convex])], axis=0)
+        completing = [i for i, t in zip(convex, reading) if t >= CORNER]
+        if len(peaks) + len(completing) == SIDES:
+            peaks = sorted(peaks + completing)
     peaks = np.array(peaks, dtype=int)
     places = [corner_place(loop, i, h) for i in peaks]
     return Corners(peaks, turn[peaks], np.array([p for p, _ in places]).reshape(-1, 2),
                    np.array([s for _, s in places]))
+
+
+def concave_added(loop: SmoothLoop, at: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(n,) the turning at arc lengths ``at`` (n,) over chords h (n,), plus half the
+    turning of each side ``SIDE_OFFSET`` h away where that side curves inwards (negative):
+    a corner's own turning where the chord beside it follows a concave side."""
+    sides = [np.minimum(loop.turning(h, at + sign * SIDE_OFFSET * h), 0.0) for sign in (-1.0, 1.0)]
+    return loop.turning(h, at) - 0.5 * (sides[0] + sides[1])
 
 
 def corner_place(loop: SmoothLoop, i: int, h: float) -> tuple[np.ndarray, float]:
