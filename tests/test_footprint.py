@@ -330,7 +330,8 @@ def test_a_side_is_carried_out_to_the_spared_corner_of_a_sparse_edge(seed):
     lone corner of that sparse edge, lies two median spacings past the side beyond its last
     point (its foot held on the side), sampled like its neighbours. The robust stage spares it: the side is carried out
     to it, along the surface's own continuation, and the point is on the face; doubted, it
-    stays off it."""
+    stays off it, and so it does lifted off the continuation by a spacing (farther than
+    the surface between samples is uncertain: junk beside the continuation)."""
     rng = np.random.default_rng(seed)
     surface = curved_sheet()
     uv = np.column_stack([1.0 - 0.9 * np.sqrt(rng.random(3000)), rng.random(3000)])  # density 10 -> 1 along u
@@ -345,6 +346,11 @@ def test_a_side_is_carried_out_to_the_spared_corner_of_a_sparse_edge(seed):
     doubted = np.arange(len(points)) == len(points) - 1
     left = footprint(surface, points, feet, distances, True, Verdict(doubted, spared & ~doubted))
     assert left.surface is surface and left.distances[-1] > 1.5 * spacing
+    normal = np.cross(*surface.derivatives(feet[-1:, 0], feet[-1:, 1])[1:])[0]
+    points[-1] += spacing * normal / np.linalg.norm(normal)
+    feet[-1:], distances[-1:] = closest_parameters(surface, points[-1:], feet[-1:])
+    off = footprint(surface, points, feet, distances, True, Verdict(np.zeros(len(points), bool), spared))
+    assert off.surface is surface and off.distances[-1] > 1.5 * spacing
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

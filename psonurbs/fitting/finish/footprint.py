@@ -16,7 +16,7 @@ From the points' final parameters (their foot points on the fitted surface):
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
    and so are the points the robust stage doubts (``verdict.doubted``: junk the fit may
    have been bent towards holds no flap of the face); a point a side of the surface was
-   carried out to (the lone corner of a sparse edge) marks the data however far off.
+   carried out to (the lone corner of a sparse edge) marks the data.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
    of the trimmed surface measures them).
@@ -647,10 +647,10 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     margin, the face is the whole domain cut there. A side of the surface that ends short
     of a straight edge by more than the margin is first carried past it
     (:func:`psonurbs.fitting.finish.straight_edges.reaching_domain`); without such an edge,
-    a side that spared points (or local outliers it then passes through) lie more than a
-    spacing past is carried out to them
+    a side that spared points (or local outliers) lie more than a spacing past is carried
+    out to those the longer surface then passes near
     (:func:`psonurbs.fitting.finish.carried_sides.reaching_data`), and they mark the data
-    on the longer surface however far off its extrapolation. The face's surface is
+    on it. The face's surface is
     then the longer one, if it is trimmed and leaves no more points off it than the
     surface as fitted: outside its loops when cut at straight edges, farther than a
     point that marks the data may lie (the robust cut-off, or ``NEAR_EXACT`` spacings)
@@ -674,7 +674,7 @@ def footprint(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, distanc
     edges = None if seen_along is None else straight_edges(points[good], seen_along, ALPHA)
     domain, carried = None if edges is None else reaching_domain(surface, edges, spacing), None
     if domain is None and verdict is not None and verdict.spared is not None:
-        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, within)
+        reach = reaching_data(surface, points, uv, good, verdict, spacing, ALPHA, band, within)
         domain, carried = (None, None) if reach is None else (reach.domain, reach.points)
     if domain is not None:
         longer = surface.restricted(*domain)
