@@ -307,6 +307,38 @@ def test_doubted_points_on_the_surface_past_an_edge_do_not_move_the_boundary(see
     assert outer_reach(taken, 1) > outer_reach(clean, 1) + 3 * spacing
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_share_of_a_neighbourhood_the_data_fill(seed):
+    """A uniform square: its points' neighbourhoods are full inside it (share 1, read
+    within the scatter of 16 points' centroid), half full on its edges."""
+    x = np.random.default_rng(seed).random((40000, 2))
+    share = footprint_module.filled_share(x)
+    inside = np.all((x > 0.1) & (x < 0.9), axis=1)
+    on_edge = (x[:, 0] < 0.001) & (np.abs(x[:, 1] - 0.5) < 0.4)
+    assert 0.88 <= share[inside].mean() <= 1.0
+    assert np.median(share[inside]) == 1.0
+    assert 0.45 <= np.median(share[on_edge]) <= 0.6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_slot_three_spacings_wide_is_a_hole(seed):
+    """A slot through the data, 3 spacings from its midline to either side and 24 long:
+    the points along its rims fill half their neighbourhoods, and judged by the spacing
+    they read across it (sqrt 2 too wide) the triangles across it passed the alpha test,
+    bridging it. Judged by the data's spacing where the data are, the slot is a hole of
+    the face: the face misses its middle, and holds every point."""
+    n = 4000
+    spacing = np.sqrt(1.0 / n)
+    slot = lambda u, v: (np.abs(u - 0.5) < 12 * spacing) & (np.abs(v - 0.5) < 3 * spacing)  # noqa: E731
+    uv = sample(lambda u, v: ~slot(u, v), n, seed=seed)
+    face = fit_footprint(uv, mode="auto", surface=plane((1.0, 1.0)))
+    assert face.trim is not None and face.loops == 2
+    middle = np.column_stack([0.5 + np.linspace(-7, 7, 15) * spacing, np.full(15, 0.5)])
+    assert not face.trim.contains(middle).any()  # the slot's ends are rounded by the alpha scale
+    assert -signed_area(face.trim.polygons()[1]) >= 0.5 * 24 * 6 * spacing ** 2
+    assert face.points_outside == 0
+
+
 def curved_sheet() -> NurbsSurface:
     g = np.linspace(0, 1, 5)
     uu, vv = np.meshgrid(g, g, indexing="ij")

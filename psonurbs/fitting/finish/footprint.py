@@ -9,7 +9,9 @@ From the points' final parameters (their foot points on the fitted surface):
    density. k is large enough that a scan's lines (dense along, sparse across) give the
    density, not the step along a line.
 3. **Alpha shape.** The Delaunay triangles of the points whose circumradius is at most
-   ``ALPHA`` times the spacing of their corners (the largest, at most ``DENSITY_JUMP``
+   ``ALPHA`` times the spacing of their corners (within a gap the data enclose, where
+   the data are: s_i scaled by the root of the share of its disc the data fill,
+   :func:`filled_share`; on a hole's rim half the disc is empty) (the largest, at most ``DENSITY_JUMP``
    times the smallest; the smallest across a jump in density on the surface:
    :func:`judging_spacing`): a gap narrower than that is
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
@@ -113,6 +115,7 @@ EDGE_SAMPLES = 400  # samples along each edge of the surface that measure how fa
 EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: a strip of surface without data
 NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
 REJUDGED_SIGMAS = 3.0  # a local outlier the fit passes this near (in its residuals' sigmas) is data
+LEAST_FILLED = 0.25  # share of a point's neighbourhood the data fill, at least (a right-angled corner's)
 
 
 @dataclass(frozen=True)
@@ -152,12 +155,43 @@ def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
     return r * np.sqrt(np.pi / k)
 
 
-def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None
-                    ) -> tuple[Delaunay, np.ndarray]:
+def filled_share(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
+    """The share (N,) of each point's neighbourhood disc (radius r_k, :func:`local_spacing`)
+    that the data fill, read from the offset of its k neighbours' centroid: where a
+    straight chord h r_k from the point cuts the disc (the data's edge), the neighbours
+    fill the rest, of area A(h) = pi - acos h + h sqrt(1 - h^2) (in r_k^2), and their
+    centroid lies g(h) = 2/3 (1 - h^2)^(3/2) / A(h) from it (0.42 r_k on the edge, h = 0).
+    The offset m is read as g(h) after the scatter of k uniform points' centroid
+    (E m^2 = 1 / 2k in a full disc) is taken off, and the share is A(h) / pi, at least
+    ``LEAST_FILLED`` (a sharp corner's wedge)."""
+    k = min(k, len(x) - 1)
+    if k < 1:
+        return np.ones(len(x))
+    dist, idx = cKDTree(x).query(x, k=k + 1)
+    offset = x[idx[:, 1:]].mean(axis=1) - x
+    m2 = np.sum(offset * offset, axis=1) / np.maximum(dist[:, -1], 1e-300) ** 2
+    m = np.sqrt(np.maximum(m2 - 0.5 / k, 0.0))
+    h = np.linspace(1.0, -1.0, 401)
+    area = np.pi - np.arccos(h) + h * np.sqrt(1.0 - h * h)
+    g = 2.0 / 3.0 * (1.0 - h * h) ** 1.5 / np.maximum(area, 1e-300)
+    g[-1] = 1.0  # the limit of a vanishing cap
+    return np.maximum(np.interp(m, g, area / np.pi), LEAST_FILLED)
+
+
+def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None,
+                    share: np.ndarray | None = None) -> tuple[Delaunay, np.ndarray]:
     """The Delaunay triangulation of x (N, 2) and the mask of its alpha-shape triangles:
     those whose circumradius is at most ``ALPHA`` times the spacing their corners judge
     them by (:func:`judging_spacing` of their spacings (N,), and of their spacings on the
     surface ``density`` (N,; default ``spacing``) for a jump in density).
+
+    With ``share`` (N,; :func:`filled_share`), a gap the data enclose is judged by the
+    spacing where the data are, each corner's times the root of its share: on a hole's
+    rim half the neighbourhood is empty and the spacing reads sqrt 2 too wide, so that a
+    slot 3 spacings wide was bridged. The triangles this drops that the outside reaches
+    (through triangles it drops or never kept) are kept as without it: past the data's
+    outer edge half of a circle is empty by nothing the data say, and judged so the
+    edge's own sampling gaps became bays (a graded strip's sparse end lost cover).
 
     Four far corners are added to the points (indices N .. N+3), so that any query point
     near the data lies inside the triangulation's hull (a point-location query outside it
@@ -176,8 +210,14 @@ def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | No
     real = np.all(tri.simplices < len(x), axis=1)
     simplices = np.where(real[:, None], tri.simplices, 0)
     density = spacing if density is None else density
-    limit = ALPHA * judging_spacing(spacing[simplices], density[simplices])
-    return tri, real & np.isfinite(radius) & (radius <= limit)
+    kept = real & np.isfinite(radius) & (radius <= ALPHA * judging_spacing(spacing[simplices], density[simplices]))
+    if share is None:
+        return tri, kept
+    root = np.sqrt(share)[simplices]
+    tight = kept & (radius <= ALPHA * judging_spacing(root * spacing[simplices], root * density[simplices]))
+    gaps = pieces(tri, ~tight)
+    outside = np.isin(gaps, np.unique(gaps[~real]))
+    return tri, tight | (kept & outside)
 
 
 def judging_spacing(corners: np.ndarray, density: np.ndarray) -> np.ndarray:
@@ -245,13 +285,13 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     ``edges``: the data's straight edges, which the face does not cross (:func:`past_straight_edges`)."""
     scale = mean_speeds(surface)
     good = np.flatnonzero(data_marks(distances, uv, scale, verdict, carried))
+    drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(uv[good] * scale, FOOTPRINT_POINTS)
     every = uv[good] * scale
-    drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(every, FOOTPRINT_POINTS)
     subsampled = len(drawn) < len(good)
     x = every[drawn]
     spacing = local_spacing(x)
     data, data_spacing = points[good[drawn]], local_spacing(points[good[drawn]])  # on the surface
-    tri, kept = alpha_triangles(x, spacing, data_spacing)
+    tri, kept = alpha_triangles(x, spacing, data_spacing, filled_share(x))
     if not kept.any():
         return None
     label = pieces(tri, kept)
