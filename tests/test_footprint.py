@@ -266,19 +266,28 @@ def outer_reach(face, side: int) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_junk_just_past_an_edge_does_not_move_the_boundary(seed):
-    """A few strays 2 to 8 spacings past the data's edge, off the surface by 12 to 19
-    noise sigmas (beyond the robust loss's cut-off, within a spacing: the surface was
-    bent towards them), say nothing about where the data are: the face ends where the
-    data end, as without them, and the strays lie off it."""
+@pytest.mark.parametrize("strays", ["beyond_the_cut_off", "apart_within_it"])
+def test_junk_just_past_an_edge_does_not_move_the_boundary(seed, strays):
+    """Strays past the data's edge say nothing about where the data are: the face ends
+    where the data end, as without them, and the strays lie off it. Twelve 2 to 8
+    spacings past, off the surface by 12 to 19 noise sigmas: beyond the robust loss's
+    cut-off, within a spacing (the surface was bent towards them). Or eight 3.5 to 6
+    spacings past, each far from the others, 6 to 9.5 sigmas off (0.3 to 0.5 spacings):
+    within the cut-off (a fit flared past the data passes near junk there), but apart
+    from the data; taken as data, each held a spike of the face."""
     surface = plane()
     uv = sample(lambda u, v: u < 0.8, 3000, seed=seed)
     rng = np.random.default_rng(100 + seed)
     spacing = np.sqrt(0.8 / 3000)  # of the unit domain
     sigma = 0.05 * spacing * 2.0  # the plane is about 2 x 1.5 units: a twentieth of the spacing on it
-    junk = np.column_stack([0.8 + rng.uniform(2, 8, 12) * spacing, rng.random(12)])
+    if strays == "beyond_the_cut_off":
+        junk = np.column_stack([0.8 + rng.uniform(2, 8, 12) * spacing, rng.random(12)])
+        off = rng.uniform(12, 19, len(junk)) * sigma
+    else:
+        junk = np.column_stack([0.8 + rng.uniform(3.5, 6, 8) * spacing, np.linspace(0.06, 0.94, 8)])
+        off = rng.uniform(6, 9.5, len(junk)) * sigma
     both = np.vstack([uv, junk])
-    distances = np.concatenate([np.abs(rng.normal(0, sigma, len(uv))), rng.uniform(12, 19, len(junk)) * sigma])
+    distances = np.concatenate([np.abs(rng.normal(0, sigma, len(uv))), off])
     clean = footprint(surface, surface.evaluate(*uv.T), uv, distances[:len(uv)], True)
     face = footprint(surface, surface.evaluate(*both.T), both, distances, True)
     assert outer_reach(face, 1) == pytest.approx(outer_reach(clean, 1), abs=0.5 * spacing)

@@ -17,7 +17,8 @@ From the points' final parameters (their foot points on the fitted surface):
    sampling, a wider one is a hole or lies outside. Gross outliers (of robust weight 0 and
    farther off the surface than the points' spacing: :func:`marks_the_data`) are left out,
    and so are the points the robust stage doubts (``verdict.doubted``: junk the fit may
-   have been bent towards holds no flap of the face); a point a side of the surface was
+   have been bent towards holds no flap of the face) and points apart from the others
+   on the surface (:func:`beside_the_data`); a point a side of the surface was
    carried out to (the lone corner of a sparse edge) marks the data.
 4. **The face.** The kept triangles' connected pieces: the face is the largest (by
    area); the points of the others lie off it (measured to its boundary, as a scorer
@@ -95,7 +96,7 @@ from psonurbs.geometry.trim import (
     signed_area,
 )
 
-from .carried_sides import domain_frame, reaching_data
+from .carried_sides import domain_frame, joined, reaching_data
 from .straight_edges import StraightEdges, reaching_domain, straight_edges
 
 NEIGHBOURS = 16
@@ -286,6 +287,7 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     scale = mean_speeds(surface)
     good = np.flatnonzero(data_marks(distances, uv, scale, verdict, carried))
     drawn = np.arange(len(good)) if len(good) <= FOOTPRINT_POINTS else well_spread(uv[good] * scale, FOOTPRINT_POINTS)
+    good, drawn = beside_the_data(points, distances, good, drawn, carried)
     every = uv[good] * scale
     subsampled = len(drawn) < len(good)
     x = every[drawn]
@@ -363,6 +365,42 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
         return None
     return Contours(polygons, good[face_points], int(np.sum(piece_area > 0) - 1),
                     int(len(others)), float(np.median(spacing)), margin / 2.0 / scale, gap, overrun, cut or None)
+
+
+def beside_the_data(points: np.ndarray, distances: np.ndarray, good: np.ndarray, drawn: np.ndarray,
+                    carried: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The marking points ``good`` (M,) and the drawn ones among them ``drawn`` (indices
+    into good), less the drawn points (of the points (N, 3), at ``distances`` (N,) from
+    the surface) that lie apart from the others on the surface, their nearest farther
+    than ``ALPHA`` times the spacing of the points beside it
+    (:func:`psonurbs.fitting.finish.carried_sides.joined`), unless the fit passes within
+    the noise of them (``REJUDGED_SIGMAS`` of its residuals' scale, as for a local
+    outlier, or ``NEAR_EXACT`` of the median spacing: a noise-free fit's scale is its
+    approximation error) or a side was ``carried`` out to them.
+
+    A point marks the data by lying near the surface, within the robust cut-off. But
+    where a fit flares past the data's edge, junk near the flare lies near it too, and
+    in the domain, which the flare's stretch shrinks, a single stray spans a spike of the
+    face to it (a saddle with 5% junk: a stray 4.2 sigmas, 0.85 spacings, off a side,
+    held a flap; truth 0.48 noise sigmas with it, 0.17 without). A real point can lie
+    as far apart (on a steep step where it meets the data's edge: 3.8 spacings on the
+    surface, 3.4 in the domain) but the fit passes through it (1.1 sigmas). Judged among
+    the drawn points, whose spacing is the face's resolution."""
+    if len(drawn) < 3:
+        return good, drawn
+    apart = distances[good[drawn]] > REJUDGED_SIGMAS * residual_scale(distances)
+    if apart.any():
+        apart &= distances[good[drawn]] > NEAR_EXACT * median_spacing(points[good])
+    if carried is not None:
+        apart &= ~np.isin(good[drawn], carried)
+    if apart.any():
+        rows = np.flatnonzero(apart)
+        apart[rows] = ~joined(points[good[drawn]], rows, np.ones(len(drawn), bool), ALPHA)
+    if not apart.any():
+        return good, drawn
+    keep = np.ones(len(good), bool)
+    keep[drawn[apart]] = False
+    return good[keep], (np.cumsum(keep) - 1)[drawn[~apart]]
 
 
 def outlines(field: np.ndarray, xs: np.ndarray, ys: np.ndarray, scale: np.ndarray, spacing: np.ndarray
