@@ -158,11 +158,11 @@ def reaching_data(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, mar
     spared = verdict.spared if verdict.doubted is None else verdict.spared & ~verdict.doubted
     outlying = verdict.outlying
     candidates = spared if outlying is None else spared | outlying
+    spared_near = max(band, CARRIED_NEAR * spacing)
     for _ in range(STEPS):
         reach = reaching_points(surface, points, uv, marks, candidates, spacing, alpha)
         if reach is None:
             return None
-        spared_near = max(band, CARRIED_NEAR * spacing)
         near = spared_near if outlying is None else np.where(outlying[reach.points], within, spared_near)
         off = closest_parameters(surface.restricted(*reach.domain), points[reach.points])[1] > near
         if not off.any():
