@@ -555,8 +555,15 @@ class MeshDistance:
                           for i, j in ((0, 1), (1, 2), (2, 0))], axis=0)
         self.lengths = np.sort(longest)[::-1]  # the longest first
         centroids = corners.mean(axis=1)
-        self.radius = float(np.linalg.norm(corners - centroids[:, None], axis=2).max())
-        self.centroids = cKDTree(centroids)
+        radii = np.linalg.norm(corners - centroids[:, None], axis=2).max(axis=1)
+        # triangles in classes of radii within a factor 2: a point searches each class
+        # within its own largest radius, so a few long triangles (a wild fit's) do not put
+        # every triangle of the mesh within every point's reach
+        classes = np.floor(np.log2(np.maximum(radii, 1e-300))).astype(np.int64)
+        self.classes = []  # (the class's largest radius, its triangles, their centroids' tree)
+        for c in np.unique(classes):
+            members = np.flatnonzero(classes == c)
+            self.classes.append((float(radii[members].max()), members, cKDTree(centroids[members])))
         order = np.argsort(self.triangles.ravel(), kind="stable")
         counts = np.bincount(self.triangles.ravel(), minlength=len(self.vertices))
         starts = np.concatenate([[0], np.cumsum(counts)])
@@ -584,26 +591,28 @@ class MeshDistance:
     def _within_reach(self, q: np.ndarray, d: np.ndarray, pairs: int = 1 << 18) -> np.ndarray:
         """The least distance over every triangle that could be nearer than d: a triangle T
         lies within R_T (its corners' farthest from its centroid c_T) of c_T, so only those
-        with |q - c_T| < d + max R can (a point far from the mesh, against its spacing).
-        Points go in groups of about ``pairs`` point-triangle pairs, each group's triangles
-        listed only when it is measured: a wild surface (a fit reaching far past the cloud)
-        has every one of its triangles within reach of every point."""
-        radius = d + self.radius
-        count = np.asarray(self.centroids.query_ball_point(q, radius, return_length=True))
-        order = np.argsort(count, kind="stable")
+        with |q - c_T| < d + R_T can (a point far from the mesh, against its spacing). Each
+        class of radii is searched within d + its largest R_T, the shortest triangles
+        first (d shrinks as nearer ones are found). Points go in groups of about ``pairs``
+        point-triangle pairs, each group's triangles listed only when it is measured."""
         out = d.copy()
-        start = 0
-        while start < len(order):  # groups of similar counts
-            stop = start + 1
-            while stop < len(order) and (stop - start + 1) * max(int(count[order[stop]]), 1) <= pairs:
-                stop += 1
-            group = order[start:stop]
-            reach = self.centroids.query_ball_point(q[group], radius[group])
-            candidates = np.full((len(group), max(int(count[group].max()), 1)), -1, np.int64)
-            for row, found in enumerate(reach):
-                candidates[row, :len(found)] = found
-            out[group] = np.minimum(out[group], self._distances(q[group], candidates))
-            start = stop
+        for radius, members, centroids in self.classes:
+            reach = out + radius
+            count = np.asarray(centroids.query_ball_point(q, reach, return_length=True))
+            order = np.argsort(count, kind="stable")
+            order = order[count[order] > 0]
+            start = 0
+            while start < len(order):  # groups of similar counts
+                stop = start + 1
+                while stop < len(order) and (stop - start + 1) * int(count[order[stop]]) <= pairs:
+                    stop += 1
+                group = order[start:stop]
+                found = centroids.query_ball_point(q[group], reach[group])
+                candidates = np.full((len(group), int(count[group].max())), -1, np.int64)
+                for row, near in enumerate(found):
+                    candidates[row, :len(near)] = members[near]
+                out[group] = np.minimum(out[group], self._distances(q[group], candidates))
+                start = stop
         return out
 
     def _long_enough(self, dk: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -363,13 +363,16 @@ def test_the_boundary_leaves_out_seams_and_poles():
     assert np.allclose(steps, steps.mean(), rtol=1e-6)  # evenly in arc length
 
 
-@pytest.mark.parametrize("collapsed", [False, True], ids=["patch", "collapsed-row"])
-def test_mesh_distance_is_the_least_over_every_triangle(collapsed):
+@pytest.mark.parametrize("kind", ["patch", "collapsed-row", "wild"])
+def test_mesh_distance_is_the_least_over_every_triangle(kind):
     vertices, triangles = open_surface().tessellate(31, 25)
-    if collapsed:  # the first row at one point, as a sphere's pole: 25 copies of a vertex
-        vertices[:25] = vertices[:25].mean(0)
     rng = np.random.default_rng(2)
     centre, size = vertices.mean(0), np.ptp(vertices, axis=0)
+    if kind == "collapsed-row":  # the first row at one point, as a sphere's pole: 25 copies of a vertex
+        vertices[:25] = vertices[:25].mean(0)
+    if kind == "wild":  # a fit flung far past its cloud: a few vertices 50 sizes out, long triangles
+        far = rng.choice(len(vertices), 12, replace=False)
+        vertices[far] += rng.normal(size=(12, 3)) * 50 * size.max()
     probes = centre + (rng.random((300, 3)) - 0.5) * size * 1.4  # near and far, inside and beyond
     exhaustive = scorer.point_triangle_distance(probes[:, None, :], *(vertices[triangles][None, :, i]
                                                                       for i in range(3))).min(axis=1)
