@@ -170,7 +170,8 @@ def filled_share(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
         return np.ones(len(x))
     dist, idx = cKDTree(x).query(x, k=k + 1)
     offset = x[idx[:, 1:]].mean(axis=1) - x
-    m2 = np.sum(offset * offset, axis=1) / np.maximum(dist[:, -1], 1e-300) ** 2
+    reach2 = dist[:, -1] ** 2
+    m2 = np.divide(np.sum(offset * offset, axis=1), reach2, out=np.zeros(len(x)), where=reach2 > 0)  # no reach: full
     m = np.sqrt(np.maximum(m2 - 0.5 / k, 0.0))
     h = np.linspace(1.0, -1.0, 401)
     area = np.pi - np.arccos(h) + h * np.sqrt(1.0 - h * h)
