@@ -1,6 +1,4 @@
-"""The finish every kept candidate gets: polish -> smoothing by leave-one-out -> polish,
-each polish with the fairness term where the data at its start leave the net free
-(:meth:`psonurbs.fitting.leastsq.regularised.RegularisedLeastSquares.supported_by`).
+"""The finish every kept candidate gets: polish -> smoothing by leave-one-out -> polish.
 
 The first polish moves the parameters close to the foot points at the candidate's own
 smoothing; there the leave-one-out choice of the smoothing weight is sharp (vanishing
@@ -79,7 +77,6 @@ def finish(layout: NetLayout, solver: RegularisedLeastSquares, fit: FitPoints, s
     With ``reweigh`` (the robust loss), the points and weights are refreshed on each
     polished surface: between the polishes always, after the second one polished once
     more if the points left out changed."""
-    solver = solver.supported_by(layout.rows(fit.uv, *shape), fit.point_weights)
     control, surface, uv, steps = polish(layout, solver, fit.points, fit.uv, shape, rounds,
                                          point_weights=fit.point_weights)
     fit = FitPoints(fit.points, uv, fit.seen, fit.point_weights)
@@ -87,7 +84,6 @@ def finish(layout: NetLayout, solver: RegularisedLeastSquares, fit: FitPoints, s
         fit = reweigh(surface, fit, False)
     solver = solver.with_smoothing(loo_smoothing(layout, solver, fit.points[fit.seen], fit.uv[fit.seen], shape,
                                                  fit.seen_weights()))
-    solver = solver.supported_by(layout.rows(fit.uv, *shape), fit.point_weights)
     control, surface, uv, more = polish(layout, solver, fit.points, fit.uv, shape, rounds,
                                         point_weights=fit.point_weights)
     steps += more

@@ -23,28 +23,6 @@ by ``w_i r_i r_i^T``, so the leave-one-out residual stays exact:
 the rows scaled by ``sqrt(w_i)`` (the residual e_i on the unscaled ones). Without
 weights (None) every number is the unweighted one.
 
-**Where the data leave the net free** (:meth:`RegularisedLeastSquares.supported_by`): a
-control point whose basis function barely reaches the data (the corners of a square
-over a disc of data) is pinned by them only to within ``a_j`` times a point's own
-scatter, ``a_j^2 = (M^-1)_jj tr(R^T W R) / n`` (a point pulled like an average one has
-``a_j`` of order 1). With lam chosen by the leave-one-out error of the data, nothing
-holds such a point: the noise of the few points at its support's edge is amplified
-into a flap far off the cloud (a cap of noise 0.6% of its size: 6.5 times the cloud's
-size). Each such point gets ``f_j = clip(log10(a_j / FREE_AMPLIFICATION), 0, 1)``, each
-row of L the mean ``v_k`` of f over its stencil (weighted by |L|), and the problem the
-fairness term ``mu |V^1/2 L P|^2``, ``mu = FAIRNESS tr(R^T W R) / n``: where no data
-decide the net it continues as the thin-plate energy makes it, and a point the data do
-pin (a sparse but real edge: ``a_j`` up to some 50) is left to them. With no more points
-than unknowns the data pin no part of the net (every a_j is large) and the smoothing the
-leave-one-out error chose decides it all: no term (the seed paper's 16 points on a 5 x 5
-net stay interpolated). ``FAIRNESS`` is
-``1 / FREE_AMPLIFICATION^2``: a free point's stencil weighs as much as the data weigh a
-point pinned at the threshold (``mean / a_j^2``), so the term decides the points the data
-hold more loosely and barely moves the loosely pinned points beside them (stronger, it
-pulled the data's edge: a noiseless L-shaped wave's rmse 1.8 times, at weight 1). The
-term is set once for a set of parameters and kept (both twins take it as one more fixed
-term).
-
 R comes as :class:`psonurbs.geometry.rows.Rows` (m non-zeros per row, grouped by
 knot-span cell), so ``R^T R`` and the leverages h_ii are sums of small dense blocks.
 
@@ -70,11 +48,6 @@ from psonurbs.geometry.rows import Rows
 CONSTRAINT_WEIGHT = 1e4  # a condition C P = 0 weighs this much more than the data: imposed
 RIDGE = 1e-12  # added to M's diagonal, relative to its mean: keeps M positive definite
 LEVERAGE_FLOOR = 1e-12  # 1 - h_ii at least this: a point that alone decides its fit keeps a finite error
-FREE_AMPLIFICATION = 100.0  # a control point the data pin only to this many times a point's scatter is free
-# the fairness term's weight where the data leave the net free, relative to the mean of R^T
-# W R's diagonal: as the data hold a point pinned at FREE_AMPLIFICATION, so that it
-# decides the points the data hold more loosely and barely moves those they pin
-FAIRNESS = FREE_AMPLIFICATION ** -2
 
 
 class RegularisedLeastSquares:
@@ -87,13 +60,11 @@ class RegularisedLeastSquares:
     """
 
     def __init__(self, smoothness: sp.csr_array, smoothing: float, constraints: sp.csr_array | None = None):
-        self.smoothness = sp.csr_array(smoothness)
         self.penalty = (smoothness.T @ smoothness).toarray()
         self.penalty_trace = float(np.trace(self.penalty))
         self.condition = None if constraints is None else (constraints.T @ constraints).toarray()
         self.condition_trace = None if constraints is None else float(np.trace(self.condition))
         self.smoothing = smoothing
-        self.fairness = None  # L^T V L (n, n) over the control points the data leave free (supported_by)
 
     def with_smoothing(self, smoothing: float) -> "RegularisedLeastSquares":
         """The same operator with another smoothing weight (no recomputation)."""
@@ -107,32 +78,7 @@ class RegularisedLeastSquares:
             else np.zeros_like(self.penalty)
         if self.condition is not None:
             out = out + (CONSTRAINT_WEIGHT * trace / self.condition_trace) * self.condition
-        if self.fairness is not None:
-            out = out + (FAIRNESS * trace / len(self.penalty)) * self.fairness
         return out
-
-    def supported_by(self, rows: Rows, point_weights: np.ndarray | None = None) -> "RegularisedLeastSquares":
-        """This problem with the fairness term (see the module) of the control points that
-        the data at these rows leave free, or with none if they pin every point."""
-        plain = copy.copy(self)
-        plain.fairness = None
-        gram = (rows if point_weights is None else rows.scaled(np.sqrt(point_weights))).gram()
-        n, trace = len(gram), float(np.trace(gram))
-        if (len(rows.values) if point_weights is None else np.count_nonzero(point_weights)) <= n:
-            return plain  # no more points than unknowns: they pin no part of the net, the smoothing decides it all
-        try:
-            factor = la.cho_factor(plain.normal_matrix(gram), check_finite=False)
-        except np.linalg.LinAlgError:
-            return plain
-        pinned = np.diag(la.cho_solve(factor, np.eye(n), check_finite=False))  # (M^-1)_jj
-        amplification = np.sqrt(np.maximum(pinned, 0.0) * trace / n)
-        free = np.clip(np.log10(np.maximum(amplification, 1e-300) / FREE_AMPLIFICATION), 0.0, 1.0)
-        if not free.any():
-            return plain
-        stencil = abs(self.smoothness)
-        rows_free = (stencil @ free) / np.maximum(stencil @ np.ones(n), 1e-300)  # v_k
-        plain.fairness = (self.smoothness.T @ self.smoothness.multiply(rows_free[:, None])).toarray()
-        return plain
 
     def normal_matrix(self, gram: np.ndarray) -> np.ndarray:
         """``M = R^T R + lam L^T L + kappa C^T C`` plus a tiny ridge that keeps M positive definite."""

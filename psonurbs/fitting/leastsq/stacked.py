@@ -2,12 +2,10 @@
 
 The batched counterpart of :class:`psonurbs.fitting.leastsq.regularised.RegularisedLeastSquares` for
 the swarm: particle k has its own rows R_k (knots, weights) and smoothing lam_k, all
-share the points X, the smoothness operator L, the pole conditions C, the fairness
-term F where the data leave the net free (the solver's, fixed, or none) and optional
+share the points X, the smoothness operator L, the pole conditions C and optional
 per-point weights w (N,). For each particle
 
-    M_k = R_k^T W R_k + lam_k t_k / tr(L^T L) L^T L + kappa t_k / tr(C^T C) C^T C
-          + FAIRNESS t_k / n F + ridge,
+    M_k = R_k^T W R_k + lam_k t_k / tr(L^T L) L^T L + kappa t_k / tr(C^T C) C^T C + ridge,
     t_k = tr(R_k^T W R_k),        M_k P_k = R_k^T W X,
 
 exactly as the single solver does, and the leave-one-out residual of point i is
@@ -37,7 +35,7 @@ from psonurbs.geometry.net import NetLayout, NetShape
 from psonurbs.geometry.stacked_rows import CellLayout, StackedRows, knot_vectors
 
 from .banded import BandOrder, StackedBandedCholesky
-from .regularised import CONSTRAINT_WEIGHT, FAIRNESS, LEVERAGE_FLOOR, RIDGE, RegularisedLeastSquares
+from .regularised import CONSTRAINT_WEIGHT, LEVERAGE_FLOOR, RIDGE, RegularisedLeastSquares
 from .stacked_compiled import particle_control, particle_errors
 
 PER_PARTICLE = ("knots_u", "knots_v", "weights", "term_scales")  # the kernels' inputs with a row per particle
@@ -53,18 +51,14 @@ class StackedLeastSquares:
         pattern = np.eye(n, dtype=bool) | (solver.penalty != 0)
         if solver.condition is not None:
             pattern |= solver.condition != 0
-        if solver.fairness is not None:
-            pattern |= solver.fairness != 0
         pattern[columns[:, :, None], columns[:, None, :]] = True
         self.order = BandOrder.for_pattern(pattern)
         self.columns = self.order.position[columns]  # (cells, m) in band order
-        self.terms = []  # (rows, columns, values, weight) of L^T L, C^T C and the fairness in band order
+        self.terms = []  # (rows, columns, values, weight) of L^T L and C^T C in band order
         if solver.penalty_trace > 0:
             self.terms.append(self._entries(solver.penalty) + (None,))
         if solver.condition is not None:
             self.terms.append(self._entries(solver.condition) + (CONSTRAINT_WEIGHT / solver.condition_trace,))
-        if solver.fairness is not None:
-            self.terms.append(self._entries(solver.fairness) + (FAIRNESS / n,))
 
     def term_scales(self, smoothing: np.ndarray) -> np.ndarray:
         """(P, terms) the regulariser's scale per particle and term: term j adds

@@ -10,7 +10,7 @@ point's foot point on it (a global search, as the metrics take it), with ``robus
 weight by the robust loss on that fit (judged with the local test's neighbourhoods of the
 whole cloud; the subsample's own fit weighs its points by the plain scale), and up to
 ``FINAL_ROUNDS`` rounds of parameter correction on the points kept, with the subsample's
-knots, weights and smoothing (and the fairness term where the points leave the net free). The result is the fit
+knots, weights and smoothing. The result is the fit
 of every point; clouds up to ``SUBSAMPLE_POINTS`` points are fitted on all their points directly.
 """
 from __future__ import annotations
@@ -81,11 +81,9 @@ def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoot
     keep = np.ones(len(points), bool) if point_weights is None else point_weights > 0
     if np.sqrt(np.mean(dist[keep] ** 2)) <= RESOLUTION:
         return Finished(surface, uv, point_weights, 0)
-    state, kept_weights = free_state(layout, surface), None if point_weights is None else point_weights[keep]
-    solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator()
-                                     ).supported_by(layout.rows(uv[keep], *state), kept_weights)
-    result = polish(layout, solver, points[keep], uv[keep], state, FINAL_ROUNDS,
-                    realign=realign, align=False, point_weights=kept_weights)
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
+    result = polish(layout, solver, points[keep], uv[keep], free_state(layout, surface), FINAL_ROUNDS,
+                    realign=realign, align=False, point_weights=None if point_weights is None else point_weights[keep])
     uv[keep] = result.uv
     return Finished(result.surface, uv, point_weights, result.rounds + 1)
 
