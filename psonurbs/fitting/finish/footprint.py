@@ -117,6 +117,12 @@ EDGE_OVERRUN = 2.0  # an edge this many spacings past the data along a stretch: 
 NEAR_EXACT = 0.25  # of the median spacing: a point beyond the robust cut-off but this near marks the data
 REJUDGED_SIGMAS = 3.0  # a local outlier the fit passes this near (in its residuals' sigmas) is data
 LEAST_FILLED = 0.25  # share of a point's neighbourhood the data fill, at least (a right-angled corner's)
+# a disc cut by a chord h (in radii) from its centre, h from 1 to -1 (:func:`filled_share`):
+# its remaining area's share A(h) / pi and that area's centroid offset g(h), increasing
+_CHORD = np.linspace(1.0, -1.0, 401)
+_AREA = np.pi - np.arccos(_CHORD) + _CHORD * np.sqrt(1.0 - _CHORD ** 2)
+CHORD_SHARE = _AREA / np.pi
+CHORD_OFFSET = np.append(2.0 / 3.0 * (1.0 - _CHORD[:-1] ** 2) ** 1.5 / _AREA[:-1], 1.0)  # 1: a vanishing cap
 
 
 @dataclass(frozen=True)
@@ -149,14 +155,20 @@ def mean_speeds(surface: NurbsSurface, n: int = 33) -> np.ndarray:
     return np.maximum(speeds, 1e-12 * max(float(speeds.max()), 1e-300))
 
 
-def local_spacing(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
-    """s_i = r_k sqrt(pi / k): the step of a uniform grid with the density around point i."""
-    k = min(k, len(x) - 1)
-    r = cKDTree(x).query(x, k=k + 1)[0][:, -1]
-    return r * np.sqrt(np.pi / k)
+def nearest(x: np.ndarray, k: int = NEIGHBOURS) -> tuple[np.ndarray, np.ndarray]:
+    """Distances and indices (N, k' + 1) of each point's k' = min(k, N - 1) nearest
+    points, itself first: what :func:`local_spacing` and :func:`filled_share` read."""
+    return cKDTree(x).query(x, k=min(k, len(x) - 1) + 1)
 
 
-def filled_share(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
+def local_spacing(x: np.ndarray, k: int = NEIGHBOURS, near: tuple | None = None) -> np.ndarray:
+    """s_i = r_k sqrt(pi / k): the step of a uniform grid with the density around point i
+    (``near``: :func:`nearest` of x, if already queried)."""
+    dist = (nearest(x, k) if near is None else near)[0]
+    return dist[:, -1] * np.sqrt(np.pi / (dist.shape[1] - 1))
+
+
+def filled_share(x: np.ndarray, k: int = NEIGHBOURS, near: tuple | None = None) -> np.ndarray:
     """The share (N,) of each point's neighbourhood disc (radius r_k, :func:`local_spacing`)
     that the data fill, read from the offset of its k neighbours' centroid: where a
     straight chord h r_k from the point cuts the disc (the data's edge), the neighbours
@@ -164,20 +176,16 @@ def filled_share(x: np.ndarray, k: int = NEIGHBOURS) -> np.ndarray:
     centroid lies g(h) = 2/3 (1 - h^2)^(3/2) / A(h) from it (0.42 r_k on the edge, h = 0).
     The offset m is read as g(h) after the scatter of k uniform points' centroid
     (E m^2 = 1 / 2k in a full disc) is taken off, and the share is A(h) / pi, at least
-    ``LEAST_FILLED`` (a sharp corner's wedge)."""
-    k = min(k, len(x) - 1)
-    if k < 1:
+    ``LEAST_FILLED`` (a sharp corner's wedge). ``near``: :func:`nearest` of x, if queried."""
+    if len(x) < 2:
         return np.ones(len(x))
-    dist, idx = cKDTree(x).query(x, k=k + 1)
+    dist, idx = nearest(x, k) if near is None else near
+    k = dist.shape[1] - 1
     offset = x[idx[:, 1:]].mean(axis=1) - x
     reach2 = dist[:, -1] ** 2
     m2 = np.divide(np.sum(offset * offset, axis=1), reach2, out=np.zeros(len(x)), where=reach2 > 0)  # no reach: full
     m = np.sqrt(np.maximum(m2 - 0.5 / k, 0.0))
-    h = np.linspace(1.0, -1.0, 401)
-    area = np.pi - np.arccos(h) + h * np.sqrt(1.0 - h * h)
-    g = 2.0 / 3.0 * (1.0 - h * h) ** 1.5 / np.maximum(area, 1e-300)
-    g[-1] = 1.0  # the limit of a vanishing cap
-    return np.maximum(np.interp(m, g, area / np.pi), LEAST_FILLED)
+    return np.maximum(np.interp(m, CHORD_OFFSET, CHORD_SHARE), LEAST_FILLED)
 
 
 def alpha_triangles(x: np.ndarray, spacing: np.ndarray, density: np.ndarray | None = None,
@@ -292,9 +300,10 @@ def face_contours(surface: NurbsSurface, points: np.ndarray, uv: np.ndarray, dis
     every = uv[good] * scale
     subsampled = len(drawn) < len(good)
     x = every[drawn]
-    spacing = local_spacing(x)
+    near = nearest(x)
+    spacing = local_spacing(x, near=near)
     data, data_spacing = points[good[drawn]], local_spacing(points[good[drawn]])  # on the surface
-    tri, kept = alpha_triangles(x, spacing, data_spacing, filled_share(x))
+    tri, kept = alpha_triangles(x, spacing, data_spacing, filled_share(x, near=near))
     if not kept.any():
         return None
     label = pieces(tri, kept)
