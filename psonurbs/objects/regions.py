@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from psonurbs.fitting.prepare.surface_scale import normals_and_variation
+from psonurbs.fitting.prepare.organise import normals_and_variation
 
 NEIGHBOURS = 16
 ANGLE = np.radians(12.0)

@@ -4,10 +4,7 @@ flat in the plane, as rigidly as the surface allows.
 No plane sees a curled sheet or a twisted strip as a height field, so their first
 parameters come from the surface itself. On at most ``EMBEDDED_POINTS`` of the points:
 
-1. **Graph** (:func:`surface_graph`): on a thick cloud (noise as wide as its spacing) the
-   points are first moved onto their neighbourhoods' planes at the scale where the cloud
-   is a surface (:mod:`psonurbs.fitting.prepare.surface_scale`), so the graph joins the
-   surface, not its noise. Then the k nearest neighbours of every point, a tangent
+1. **Graph** (:func:`surface_graph`): the k nearest neighbours of every point, a tangent
    frame ``(e1, e2, n)`` by PCA of each neighbourhood, and the normals oriented
    consistently (propagated along the minimum spanning tree of ``1 - |n_i . n_j|``,
    Hoppe et al. 1992). The edges are the mutual neighbours (each among the other's k
@@ -55,7 +52,6 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from psonurbs.fitting.finish.polish import AndersonMixing
-from psonurbs.fitting.prepare.surface_scale import principal_axes, surface_scale
 
 from .four_sided import aligned, square_map
 from .parametrisation import FILL_MARGIN, Parametrisation, fill, fill_cells, unit_square
@@ -81,7 +77,6 @@ class SurfaceGraph:
     mutual: np.ndarray  # (M, k) bool: the edges of the graph (each end among the other's neighbours)
     frames: np.ndarray  # (M, 3, 3) rows e1, e2, n: right-handed, n oriented consistently
     component: np.ndarray  # (M,) bool: in the largest connected part of the graph
-    thinned_over: int = 0  # points per neighbourhood whose plane each point was moved onto (0: none)
 
     @property
     def normals(self) -> np.ndarray:
@@ -120,23 +115,20 @@ def mutual_neighbours(neighbours: np.ndarray) -> np.ndarray:
 
 
 def surface_graph(points: np.ndarray, neighbours: int = NEIGHBOURS) -> SurfaceGraph:
-    """Neighbours, tangent frames and consistently oriented normals of ``points`` (M, 3),
-    a thick cloud's points moved onto their neighbourhoods' planes first."""
+    """Neighbours, tangent frames and consistently oriented normals of ``points`` (M, 3)."""
     k = min(neighbours, len(points) - 1)
-    scale = surface_scale(points, k + 1)
-    if scale.widened:
-        points = scale.on_planes(points)
     lengths, idx = cKDTree(points).query(points, k=k + 1)
     lengths, idx = lengths[:, 1:], idx[:, 1:]
     mutual = mutual_neighbours(idx)
-    _, _, vecs = principal_axes(points, np.concatenate([np.arange(len(points))[:, None], idx], axis=1))
+    hood = np.concatenate([points[:, None, :], points[idx]], axis=1)
+    hood = hood - hood.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", hood, hood))
     normals = oriented(vecs[:, :, 0], idx, mutual)
     e1 = vecs[:, :, 2]
     frames = np.stack([e1, np.cross(normals, e1), normals], axis=1)
     _, labels = csgraph.connected_components(edge_matrix(idx, mutual, lengths), directed=False)
     largest = np.argmax(np.bincount(labels))
-    return SurfaceGraph(points, idx, lengths, mutual, frames, labels == largest,
-                        scale.neighbours if scale.widened else 0)
+    return SurfaceGraph(points, idx, lengths, mutual, frames, labels == largest)
 
 
 def oriented(normals: np.ndarray, neighbours: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -368,8 +360,6 @@ def intrinsic_parameters(points: np.ndarray, graph: SurfaceGraph | None = None,
     folded = reversed_share(graph, flattening.positions)
     info = {"method": "intrinsic", "embedded_points": int(graph.component.sum()),
             "neighbours": int(graph.neighbours.shape[1]), "rigid_rounds": flattening.rounds, "folded_share": folded}
-    if graph.thinned_over:
-        info["thinned_over"] = graph.thinned_over
     square, corners = square_map(embedded)
     info["corners_degrees"] = corners
     if square is None:

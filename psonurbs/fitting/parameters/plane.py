@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from psonurbs.fitting.prepare.surface_scale import local_normals
+from psonurbs.fitting.prepare.organise import local_normals
 
 from .parametrisation import FLAT, Parametrisation, cell_counts, min_area_rectangle, plane_basis, unit_square
 

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from psonurbs.fitting.finish.footprint import median_spacing
 from psonurbs.fitting.finish.self_checks import check_fit
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
-from psonurbs.fitting.prepare.surface_scale import normals_and_variation
+from psonurbs.fitting.prepare.organise import normals_and_variation
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
 

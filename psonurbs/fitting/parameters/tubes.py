@@ -18,7 +18,7 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from psonurbs.fitting.prepare.surface_scale import local_normals
+from psonurbs.fitting.prepare.organise import local_normals
 
 from .closed import circle_fits, fit_circle, frame_around, largest_gap, seam_at_gap, turn_fraction
 from .parametrisation import Parametrisation, plane_bases

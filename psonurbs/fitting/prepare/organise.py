@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs.errors import InputError
 
@@ -123,3 +124,18 @@ def subsample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     if n <= size:
         return np.arange(n)
     return np.sort(rng.choice(n, size, replace=False))
+
+
+def normals_and_variation(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unoriented unit normals (N, 3) and surface variation l_0 / (l_0 + l_1 + l_2) (N,)
+    by PCA of each point's neighbourhood (N, k indices into ``points``)."""
+    q = points[neighbours] - points[neighbours].mean(axis=1, keepdims=True)
+    eigenvalues, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
+    return vectors[:, :, 0], eigenvalues[:, 0] / np.maximum(eigenvalues.sum(axis=1), 1e-300)
+
+
+def local_normals(points: np.ndarray, neighbours: int = 12) -> np.ndarray:
+    """Unoriented unit normals by PCA of each point's nearest neighbours."""
+    k = min(neighbours, len(points))
+    _, idx = cKDTree(points).query(points, k=k)
+    return normals_and_variation(points, idx)[0]
