@@ -691,10 +691,27 @@ def edge_cases() -> list[Case]:
     ]
 
 
+def thick_cases() -> list[Case]:
+    """Clouds whose noise is about as wide as their sampling step sqrt(area / points) or wider (a
+    phone's depth scan, photogrammetry of a dull surface): a dozen neighbours make a blob,
+    not a disc, and the rim's noisy points hold the net where no data are."""
+    def case(name, shape, note, noise):
+        return Case(name, "thick", shape, scattered(4000), (4, 4), (8, 8), "open", note, noise=noise)
+    return [
+        case("cap60_thick", cap(60.0), "a 60-degree cap (a height field), noise 1.1 sampling steps", 0.012),
+        case("cap60_thicker", cap(60.0), "the cap, noise 2.1 sampling steps", 0.024),
+        case("hemisphere_thick", cap(90.0), "a hemisphere, its rim vertical, noise 0.9 sampling steps", 0.012),
+        case("franke_thick", franke, "Franke's surface, noise 1e-2 of the diagonal", 0.01),
+        case("saddle_thick", saddle, "a saddle, noise 1e-2 of the diagonal", 0.01),
+        case("tub_thick", tub, "the pan whose sides turn vertical, noise 1.2e-2 of the diagonal", 0.012),
+    ]
+
+
 SUITES: dict[str, dict[str, Case]] = {
     name: {case.name: case for case in make()}
     for name, make in (("public", public_cases), ("robust", robust_cases), ("unseen", unseen_cases),
-                       ("features", feature_cases), ("trims", trim_cases), ("edges", edge_cases))}
+                       ("features", feature_cases), ("trims", trim_cases), ("edges", edge_cases),
+                       ("thick", thick_cases))}
 CASES = SUITES["public"]
 
 

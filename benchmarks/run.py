@@ -70,6 +70,8 @@ VIEWS = {
                                     "noise")),
     "edges": SuiteView(("swarm",), ("topology", "param", "loops", "rmse", "truth_rms", "truth_sigma", "cover_max_sp",
                                     "overrun_max", "overrun_p95", "bare_share", "empty_share")),
+    "thick": SuiteView(("swarm",), ("param", "rmse", "truth_rms", "truth_sigma", "cover_max_sp", "overrun_max",
+                                    "overrun_p95", "bare_share", "overhang")),
     "real": SuiteView(("swarm",), ("points", "topology", "outliers", "rmse", "p99", "max", "overhang",
                                    "claim_err")),
 }
@@ -255,7 +257,7 @@ suite measures and how to run it; the figures are defined in `benchmarks/score.p
 Each suite on its own:
 
     python3 benchmarks/run.py --suite public      # the table below
-    python3 benchmarks/run.py --suite features    # also robust, unseen, trims, edges
+    python3 benchmarks/run.py --suite features    # also robust, unseen, trims, edges, thick
     python3 benchmarks/run.py --suite real --scans SCANS/
 
 ## The public table

@@ -58,7 +58,7 @@ def test_the_generator_makes_the_sample_clouds():
 def test_every_suite_is_one_kind_of_case_with_names_of_its_own():
     names = [name for suite in cases.SUITES.values() for name in suite]
     assert len(names) == len(set(names))  # a name says which case, whatever the suite
-    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims", "edges"}
+    assert set(cases.SUITES) == {"public", "robust", "unseen", "features", "trims", "edges", "thick"}
     assert len(cases.CASES) == 15 and cases.CASES is cases.SUITES["public"]
     for suite, members in cases.SUITES.items():
         assert all(isinstance(c, cases.Case) and c.suite == suite for c in members.values()), suite
@@ -97,6 +97,18 @@ EDGES = {"step_bump14": ((4, 4), (14, 14), 4000), "graded_helicoid": ((4, 4), (1
          "s_fold": ((4, 4), (12, 6), 4000), "tilted_saddle_junk5": ((4, 4), (8, 8), 4000),
          "franke_junk4": ((4, 4), (12, 12), 5000), "cone_sector270": ((3, 2), (7, 2), 3000),
          "sphere_band288": ((4, 4), (10, 6), 4000), "wave_sparse_end": ((4, 4), (10, 10), 4000)}
+
+
+def test_the_thick_suite_is_about_as_noisy_as_its_sampling_step_or_noisier():
+    """sigma (a share of the noise-free cloud's diagonal) over the sampling step
+    sqrt(area / points), the area the truth mesh's."""
+    for case in cases.SUITES["thick"].values():
+        clean = case.shape(*case.sampler(np.random.default_rng(0)))
+        diagonal = np.linalg.norm(clean.max(0) - clean.min(0))
+        vertices, triangles = case.truth()
+        a, b, c = (vertices[triangles[:, k]] for k in range(3))
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+        assert case.noise * diagonal / np.sqrt(area / len(clean)) >= 0.8, case.name
 
 
 def test_the_edges_suite_writes_its_cases(tmp_path):
