@@ -95,6 +95,33 @@ def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
     assert longer.shape == s.shape
 
 
+def test_a_sphere_faces_poles_stay_points_when_it_is_extended_and_an_open_end_grows():
+    """Past a pole the continued end span would open a ring round it, an edge no other face
+    meets (a cup fitted as a sphere's topology kept two such holes in its shell)."""
+    from psonurbs.geometry.net import NetLayout
+    from psonurbs.objects.join import extended_face
+
+    nu, nv = 8, 6
+    layout = NetLayout((nu, nv), (3, 3), (True, False), poles=True)
+    lon, lat = np.meshgrid(2 * np.pi * np.arange(nu) / nu, np.linspace(0, np.pi, nv), indexing="ij")
+    grid = np.stack([np.sin(lat) * np.cos(lon), np.sin(lat) * np.sin(lon), -np.cos(lat)], -1).reshape(-1, 3)
+    points = np.zeros((layout.n_free, 3))
+    points[layout.free_index[layout.distinct_index().ravel()]] = grid[layout.distinct_index().ravel()]
+    sphere = layout.surface(points, np.ones(layout.n_free))
+    t = np.linspace(0, 1, 30)
+    for v in (0.0, 1.0):
+        assert np.ptp(sphere.evaluate(t, np.full_like(t, v)), axis=0).max() < 1e-12
+    grown = extended_face(sphere, 0.1)
+    for v in (0.0, 1.0):
+        ends = grown.evaluate(t, np.full_like(t, v))
+        assert np.ptp(ends, axis=0).max() < 1e-12 and np.allclose(ends[0], sphere.evaluate(t[:1], np.full(1, v))[0])
+    cut = layout.surface(points, np.ones(layout.n_free)).restricted((0.0, 1.0), (0.0, 0.7))  # an open end at v = 1
+    grown = extended_face(cut, 0.1)
+    assert np.ptp(grown.evaluate(t, np.zeros_like(t)), axis=0).max() < 1e-12
+    top, was = grown.evaluate(t, np.ones_like(t)), cut.evaluate(t, np.ones_like(t))
+    assert np.all(np.linalg.norm(top - was, axis=1) > 0.05)
+
+
 def test_an_end_span_much_shorter_than_the_reach_is_extended_about_the_reach_not_flung_off():
     """A flat sheet whose first span in u is a hundredth of the domain (a dense net's
     end): its polynomial continued over the reach (ten such spans), the edge would land 5

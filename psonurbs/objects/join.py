@@ -38,6 +38,7 @@ EXTEND = 0.05  # of the object's diagonal: how far a face reaches past its data
 EXTEND_SPACINGS = 8.0  # ... and at least this many point spacings
 HELD_DENSITY = 0.25  # a piece is kept when its points per area reach this share of the faces'
 EDGE_SAMPLES = 48  # points per edge of a trim loop read back from OpenCASCADE
+POLE = 1e-9  # an end's edge shorter than this many reaches is a point
 FLARE = 3.0  # an extended end's edge lies at most this many reaches from where the surface ended
 
 
@@ -74,7 +75,9 @@ class Joined:
 
 def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
     """The surface with each open direction extended by ``reach`` in space at both ends
-    (in parameters: reach over the mean speed along that end's edge), halved until its
+    (in parameters: reach over the mean speed along that end's edge), but not past a pole
+    (an end whose edge is one point, a sphere's: past it the surface would open a ring
+    round the pole, an edge no other face meets), halved until its
     weights stay positive and no point of an end's new edge lies farther than
     ``FLARE`` reaches from the old one: the end span's polynomial, continued over many
     of its own lengths (a dense net's short end span), flares far past where it was sent."""
@@ -87,6 +90,9 @@ def extended_face(surface: NurbsSurface, reach: float) -> NurbsSurface:
         ends = []
         for edge in (0.0, 1.0):
             u, v = (np.full_like(t, edge), t) if k == 0 else (t, np.full_like(t, edge))
+            if np.ptp(surface.evaluate(u, v), axis=0).max() <= POLE * reach:  # a pole: no edge to go past
+                ends.append(0.0)
+                continue
             speed = np.linalg.norm(surface.derivatives(u, v)[1 + k], axis=1).mean()
             ends.append(reach / max(speed, 1e-12))
         ranges.append((-ends[0], 1.0 + ends[1]))
