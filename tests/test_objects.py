@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from psonurbs.objects.regions import CREASE, folded_variation, segment
+from psonurbs.objects.regions import CREASE, folded_variation, segment, split_where_facing
 
 
 def can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, noise: float = 5e-4) -> np.ndarray:
@@ -82,6 +82,49 @@ def test_rounded_rims_are_bends_not_creases_and_a_can_with_them_is_one_region():
     assert regions.count == 1
     assert np.mean(regions.labels < 0) < 0.01
     assert folded_variation(CREASE) > 0.02
+
+
+def test_a_cup_grown_as_one_region_splits_into_its_base_and_its_wall_where_the_normals_face_its_axis():
+    """The rounded can without its lid and top round: one region (wall, rounded foot,
+    base) that splits at the foot's 45 degree line; a wall alone or a plane does not split."""
+    cloud = rounded_can(6000)
+    cup = cloud[cloud[:, 2] < 1.2 - 0.1]
+    regions = segment(cup)
+    assert regions.count == 1
+    parts = split_where_facing(cup, regions.normals, least=int(0.03 * len(cup)))
+    assert parts.max() == 1
+    radius = np.hypot(cup[:, 0], cup[:, 1])
+    turned = np.degrees(np.arctan2(0.1 - cup[:, 2], radius - 0.4))  # on the foot: 0 at the wall, 90 at the base
+    foot, wall, base = (cup[:, 2] < 0.1) & (radius > 0.4), parts == 0, parts == 1
+    assert np.all(turned[foot & wall] < 45 + 10) and np.all(turned[foot & base] > 45 - 10)
+    assert np.all(cup[wall, 2] > 0.1 - 0.1 * np.sin(np.radians(55))) and np.all(radius[base] < 0.5 - 0.1 * (1 - np.cos(np.radians(35))))
+    assert np.mean(parts < 0) < 0.01
+    tube = cup[radius > 0.49]
+    assert split_where_facing(tube, segment(tube).normals, least=100).max() == 0
+    rng = np.random.default_rng(2)
+    plane = np.column_stack([rng.random((3000, 2)), 1e-4 * rng.standard_normal(3000)])
+    assert split_where_facing(plane, segment(plane).normals, least=100).max() == 0
+
+
+def test_a_region_that_misses_the_tolerance_is_split_and_the_split_kept_only_when_its_parts_come_nearer():
+    from types import SimpleNamespace
+
+    from psonurbs.objects.whole import split_missed
+
+    cloud = rounded_can(6000)
+    cup = cloud[cloud[:, 2] < 1.2 - 0.1]
+    regions = segment(cup)
+
+    def result(achieved):
+        return SimpleNamespace(info={"tolerance": {"achieved": achieved, "value": 1.0}})
+
+    for part_error, kept in ((0.5, 1), (3.0, 0)):
+        members, fits, calls = [regions.members(0)], [result(2.0)], []
+        count = split_missed(cup, regions, members, fits, lambda m: calls.append(len(m)) or result(part_error))
+        assert count == kept and len(calls) == 2 and sum(calls) > 0.99 * len(cup)
+        assert len(members) == 1 + kept and [f.info["tolerance"]["achieved"] for f in fits][-1] == (part_error if kept else 2.0)
+    members, fits = [regions.members(0)], [result(0.9)]
+    assert split_missed(cup, regions, members, fits, lambda m: pytest.fail("a region that meets is fitted again")) == 0
 
 
 def test_a_surface_extended_past_its_domain_is_the_same_surface_there():

@@ -17,12 +17,18 @@ points facing each other (each within ``CONTACT`` neighbours of the other region
 within ``CREASE``. Noise breaks a region's growth without a crease (a rough terrain), and
 so does a bend tighter than a neighbourhood (a bottle's rounded corners, 40 degrees
 across); a crease (a can's rim, a shaft's step: 85-90 degrees) stays.
+
+A region grown round a fillet can be one no single surface fits (a cup: wall, rounded
+foot and base); :func:`split_where_facing` parts it where its normals turn to face the
+direction they span least, for the caller to try when a region's fit misses its tolerance.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from psonurbs.fitting.prepare.organise import normals_and_variation
@@ -33,6 +39,8 @@ ROUGH = 4.0
 MIN_SHARE = 0.03
 CONTACT = 32
 CREASE = np.radians(45.0)  # a turn this large across a band is a crease (the four-sided map's corner)
+FACING = np.radians(45.0)  # a split's side: normals this close to the direction they span least
+LINKS = 8  # neighbours that join a split side's points into pieces
 
 
 @dataclass(frozen=True)
@@ -130,6 +138,28 @@ def _by_size(labels: np.ndarray) -> np.ndarray:
     rename = np.full(int(labels.max()) + 1, -1)
     rename[order] = np.arange(len(order))
     return np.where(kept, rename[np.maximum(labels, 0)], -1)
+
+
+def split_where_facing(points: np.ndarray, normals: np.ndarray, least: int) -> np.ndarray:
+    """Labels (M,) of a region's parts, for a region that one surface does not fit: its
+    points whose normal lies within ``FACING`` of the direction a the normals span least
+    (a: the least eigenvector of sum n n^T over the region), against the rest, each side's
+    connected pieces (``LINKS`` nearest neighbours on the same side) a part; pieces
+    smaller than ``least`` points go to none (-1). A cup's base faces its axis, its wall
+    does not; a bottle's shoulder faces it, its body does not. A region of one smooth
+    surface that turns less than ``FACING`` towards its least direction (a plane, a
+    cylinder's wall, a shallow cap) does not split: every label is 0."""
+    axis = np.linalg.eigh(normals.T @ normals)[1][:, 0]
+    facing = np.abs(normals @ axis) > np.cos(FACING)
+    k = min(LINKS, len(points))
+    neighbours = cKDTree(points).query(points, k)[1]
+    same = facing[neighbours] == facing[:, None]
+    rows = np.repeat(np.arange(len(points)), k)[same.ravel()]
+    graph = coo_matrix((np.ones(len(rows)), (rows, neighbours.ravel()[same.ravel()])), shape=(len(points),) * 2)
+    pieces = connected_components(graph, directed=False)[1]
+    sizes = np.bincount(pieces)
+    labels = _by_size(np.where(sizes[pieces] >= least, pieces, -1))
+    return labels if labels.max() > 0 else np.zeros(len(points), int)
 
 
 def segment(points: np.ndarray, most: int | None = None) -> Regions:

@@ -4,7 +4,8 @@ With ``patches: auto`` (or N) the cloud is split into regions
 (:mod:`psonurbs.objects.regions`); a cloud that stays one region is fitted as one surface
 with ``topology: auto``, as ``patches: 1`` would with it. Otherwise each region is fitted
 by the single-surface pipeline with ``topology: auto`` (a cylinder's wall, a flat cap, a sphere's end each get
-theirs) and the object's tolerance in cloud units, untrimmed; the faces are then extended,
+theirs) and the object's tolerance in cloud units, untrimmed; a region whose fit misses the
+tolerance is split where its normals turn (:func:`split_missed`); the faces are then extended,
 cut where they cross, the pieces the data hold kept and sewn
 (:mod:`psonurbs.objects.join`). Every point is measured to its nearest kept face, trims
 included: the object's rmse, max and 99th percentile. Without OpenCASCADE (the optional
@@ -23,7 +24,7 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
 
 from .join import face_distances
-from .regions import segment
+from .regions import MIN_SHARE, Regions, segment, split_where_facing
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,42 @@ def face_config(config, diagonal: float, joined: bool):
     return config_from_dict({k: v for k, v in d.items() if v is not None}, source="a face's config")
 
 
+def missed_by(result: FitResult) -> float:
+    """How far a region's fit is from its tolerance: achieved / tolerance (0 without one)."""
+    tolerance = result.info.get("tolerance")
+    return tolerance["achieved"] / tolerance["value"] if tolerance else 0.0
+
+
+def split_missed(points: np.ndarray, regions: Regions, members: list[np.ndarray], fits: list[FitResult],
+                 fit_region: Callable[[np.ndarray], FitResult]) -> int:
+    """Regions whose fit misses the tolerance split (:func:`split_where_facing`) and their
+    parts fitted, in place in ``members`` and ``fits`` (the first part where the region
+    was, the others appended, themselves split again if they miss); a split is kept when
+    every part's fit comes nearer the tolerance than the region's. At most as many splits
+    are tried as there were regions, so the time stays bounded. Returns the splits kept."""
+    least = int(np.ceil(MIN_SHARE * len(points)))
+    tries, kept, r = len(members), 0, 0
+    while r < len(members) and tries > 0:
+        if missed_by(fits[r]) <= 1.0:
+            r += 1
+            continue
+        parts = split_where_facing(points[members[r]], regions.normals[members[r]], least)
+        if parts.max() <= 0:
+            r += 1
+            continue
+        tries -= 1
+        pieces = [members[r][parts == p] for p in range(int(parts.max()) + 1)]
+        part_fits = [fit_region(piece) for piece in pieces]
+        if max(missed_by(f) for f in part_fits) >= missed_by(fits[r]):
+            r += 1
+            continue
+        kept += 1
+        members[r], fits[r] = pieces[0], part_fits[0]
+        members.extend(pieces[1:])
+        fits.extend(part_fits[1:])
+    return kept
+
+
 def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                fit: Callable = fit_points) -> ObjectFit | FitResult:
     """The object's faces; a cloud that is one region is one face, fitted as one surface
@@ -95,10 +132,14 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
     joined = step_available()
     region_config = face_config(config, diagonal, joined)
-    fits: list[FitResult] = [fit(points[regions.members(r)], region_config, on_iteration=on_iteration)
-                             for r in range(regions.count)]
-    notes = [f"{regions.count} regions (creases part them); {int(np.sum(regions.labels < 0))} points "
-             "in creases' bands or in regions too small, measured to their nearest face"]
+    members = [regions.members(r) for r in range(regions.count)]
+    fits: list[FitResult] = [fit(points[m], region_config, on_iteration=on_iteration) for m in members]
+    splits = split_missed(points, regions, members, fits,
+                          lambda m: fit(points[m], region_config, on_iteration=on_iteration))
+    unclaimed = len(points) - sum(len(m) for m in members)
+    notes = [f"{regions.count} regions (creases part them)"
+             + (f", {splits} split where one surface missed the tolerance" if splits else "")
+             + f"; {unclaimed} points in creases' bands or in regions too small, measured to their nearest face"]
     shell, shape, pieces = None, None, [(f.surface, f.trim, f.topology, r) for r, f in enumerate(fits)]
     distances = None
     if joined:
@@ -130,7 +171,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
         d = distances[nearest == k]
         faces.append(Face(surface, trim, topology, region,
                           {"points": int(len(d)), "rmse": float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0,
-                           "region_points": int(np.sum(regions.labels == region)),
+                           "region_points": int(len(members[region])),
                            "control_points": int(fits[region].metrics["control_points"])},
                           {"region_fit": fits[region].info, "notes": fits[region].notes}))
     rmse = float(np.sqrt(np.mean(distances ** 2)))
