@@ -205,6 +205,9 @@ OBJECTS = {o.name: o for o in [
                            ring(0.0, 0.4, 0.0), ring(0.0, 0.4, 1.2)],
            np.pi * 0.25 * 1.0 + 2.0 * np.pi * (0.016 + 0.4 * np.pi * 0.01 / 2.0 + 0.001 * 2.0 / 3.0), 8000,
            "a can whose rims are rounded (radius 0.1): every join tangent"),
+    Object("cup", [wall(0.5, 0.5, 0.1, 1.2), fillet(0.4, 0.1, 0.1, False), ring(0.0, 0.4, 0.0), ring(0.0, 0.5, 1.2)],
+           np.pi * 0.25 * 1.1 + np.pi * (0.016 + 0.4 * np.pi * 0.01 / 2.0 + 0.001 * 2.0 / 3.0), 8000,
+           "a can rounded at its foot (radius 0.1), its lid's rim sharp: the wall and the base one bag"),
     Object("holed_plate", [holed_square(1.0, 0.2, 0.0), holed_square(1.0, 0.2, 0.25), wall(0.2, 0.2, 0.0, 0.25)]
            + [square((x, y, 0.0), (dx, dy, 0.0), (0, 0, 0.25)) for x, y, dx, dy in
               ((-0.5, -0.5, 1, 0), (0.5, -0.5, 0, 1), (0.5, 0.5, -1, 0), (-0.5, 0.5, 0, -1))],
