@@ -120,7 +120,7 @@ def test_a_region_that_misses_the_tolerance_is_split_and_the_split_kept_only_whe
 
     for part_error, kept in ((0.5, 1), (3.0, 0)):
         members, fits, calls = [regions.members(0)], [result(2.0)], []
-        count = split_missed(cup, regions, members, fits, lambda m: calls.append(len(m)) or result(part_error))
+        count = split_missed(cup, regions, members, fits, lambda m, calls=calls, e=part_error: calls.append(len(m)) or result(e))
         assert count == kept and len(calls) == 2 and sum(calls) > 0.99 * len(cup)
         assert len(members) == 1 + kept and [f.info["tolerance"]["achieved"] for f in fits][-1] == (part_error if kept else 2.0)
     members, fits = [regions.members(0)], [result(0.9)]
