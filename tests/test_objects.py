@@ -127,6 +127,24 @@ def test_a_region_that_misses_the_tolerance_is_split_and_the_split_kept_only_whe
     assert split_missed(cup, regions, members, fits, lambda m: pytest.fail("a region that meets is fitted again")) == 0
 
 
+def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_faces_win():
+    from types import SimpleNamespace
+
+    from psonurbs.objects.whole import shell_rank
+
+    rng = np.random.default_rng(4)
+    near, far = rng.random((2, 1000)) * 1e-3, rng.random((2, 1000)) * 1e-2
+
+    def shell(closed, distances):
+        return SimpleNamespace(faces=[0, 1], closed=closed, distances=distances)
+
+    assert shell_rank(shell(True, far)) > shell_rank(shell(False, near))
+    assert shell_rank(shell(False, near)) > shell_rank(shell(False, far)) > shell_rank(None)
+    assert shell_rank(shell(False, far)) > shell_rank(SimpleNamespace(faces=[], closed=False, distances=None))
+    both = np.vstack([far[:1], near[1:]])  # each point measured to its nearer face
+    assert shell_rank(shell(False, both))[1] == pytest.approx(-np.percentile(np.minimum(far[0], near[1]), 99))
+
+
 def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
     from conftest import open_surface
 

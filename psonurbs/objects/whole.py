@@ -5,7 +5,8 @@ With ``patches: auto`` (or N) the cloud is split into regions
 with ``topology: auto``, as ``patches: 1`` would with it. Otherwise each region is fitted
 by the single-surface pipeline with ``topology: auto`` (a cylinder's wall, a flat cap, a sphere's end each get
 theirs) and the object's tolerance in cloud units, untrimmed; a region whose fit misses the
-tolerance is split where its normals turn (:func:`split_missed`); the faces are then extended,
+tolerance is split where its normals turn (:func:`split_missed`), the split kept where its
+faces join into a better shell (:func:`shell_rank`); the faces are then extended,
 cut where they cross, the pieces the data hold kept and sewn
 (:mod:`psonurbs.objects.join`). Every point is measured to its nearest kept face, trims
 included: the object's rmse, max and 99th percentile. Without OpenCASCADE (the optional
@@ -120,6 +121,26 @@ def split_missed(points: np.ndarray, regions: Regions, members: list[np.ndarray]
     return kept
 
 
+def joined_faces(fits: list[FitResult], points: np.ndarray, tolerance: float, spacing: float):
+    """The faces of ``fits`` cut and sewn (:func:`psonurbs.objects.join.join`): (Joined,
+    None), or (None, why) when OpenCASCADE fails (its failures are many and rare: the
+    faces then stay apart)."""
+    from .join import join
+
+    try:
+        return join([f.surface for f in fits], points, tolerance, spacing), None
+    except Exception as e:
+        return None, f"{type(e).__name__}: {e}"
+
+
+def shell_rank(done) -> tuple[bool, float]:
+    """How good a join is, larger better: a closed shell first, then the lower 99th
+    percentile of the points' distances to their nearest face (no join: the worst)."""
+    if done is None or not done.faces:
+        return (False, -np.inf)
+    return (bool(done.closed), -float(np.percentile(done.distances.min(axis=0), 99)))
+
+
 def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                fit: Callable = fit_points) -> ObjectFit | FitResult:
     """The object's faces; a cloud that is one region is one face, fitted as one surface
@@ -134,22 +155,25 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     region_config = face_config(config, diagonal, joined)
     members = [regions.members(r) for r in range(regions.count)]
     fits: list[FitResult] = [fit(points[m], region_config, on_iteration=on_iteration) for m in members]
+    whole = (list(members), list(fits))
     splits = split_missed(points, regions, members, fits,
                           lambda m: fit(points[m], region_config, on_iteration=on_iteration))
+    shell, shape, distances, done, joined_notes = None, None, None, None, []
+    if joined:
+        tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
+        done, reason = joined_faces(fits, points, tolerance, regions.spacing)
+        if splits:
+            unsplit, unsplit_reason = joined_faces(whole[1], points, tolerance, regions.spacing)
+            if shell_rank(unsplit) > shell_rank(done):
+                (members, fits), done, reason, splits = whole, unsplit, unsplit_reason, 0
+                joined_notes.append("a split region's faces joined worse than the whole region's: kept whole")
     unclaimed = len(points) - sum(len(m) for m in members)
     notes = [f"{regions.count} regions (creases part them)"
              + (f", {splits} split where one surface missed the tolerance" if splits else "")
              + f"; {unclaimed} points in creases' bands or in regions too small, measured to their nearest face"]
-    shell, shape, pieces = None, None, [(f.surface, f.trim, f.topology, r) for r, f in enumerate(fits)]
-    distances = None
+    notes += joined_notes
+    pieces = [(f.surface, f.trim, f.topology, r) for r, f in enumerate(fits)]
     if joined:
-        from .join import join
-
-        tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
-        try:
-            done = join([f.surface for f in fits], points, tolerance, regions.spacing)
-        except Exception as e:  # OpenCASCADE's failures are many and rare: the faces stay apart
-            done, reason = None, f"{type(e).__name__}: {e}"
         if done is not None and done.faces:
             pieces = [(face.surface, face.trim, fits[face.region].topology, face.region) for face in done.faces]
             shell, shape, distances = done.to_dict(), done.shape, done.distances
