@@ -145,6 +145,16 @@ def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_face
     assert shell_rank(shell(False, both))[1] == pytest.approx(-np.percentile(np.minimum(far[0], near[1]), 99))
 
 
+def test_a_region_fits_warning_names_its_faces_as_the_json_orders_them():
+    from types import SimpleNamespace
+
+    from psonurbs.objects.whole import faces_of
+
+    faces = [SimpleNamespace(region=r) for r in (2, 0, 2)]
+    assert faces_of(2, faces) == "faces 0, 2" and faces_of(0, faces) == "face 1"
+    assert faces_of(1, faces) == "region 1 (no face kept)"
+
+
 def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
     from conftest import open_surface
 

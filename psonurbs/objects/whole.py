@@ -141,6 +141,15 @@ def shell_rank(done) -> tuple[bool, float]:
     return (bool(done.closed), -float(np.percentile(done.distances.min(axis=0), 99)))
 
 
+def faces_of(region: int, faces) -> str:
+    """How a region's fit is named to the user: by its faces' places in the JSON's
+    ``surfaces`` (a cut can keep several pieces of one region, or none)."""
+    places = [str(k) for k, face in enumerate(faces) if face.region == region]
+    if not places:
+        return f"region {region} (no face kept)"
+    return ("face " if len(places) == 1 else "faces ") + ", ".join(places)
+
+
 def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                fit: Callable = fit_points) -> ObjectFit | FitResult:
     """The object's faces; a cloud that is one region is one face, fitted as one surface
@@ -209,5 +218,5 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                                                     "max_error" if config.tolerance_measure == "max" else "rmse"]
                                             <= region_config.tolerance)}
     curve = object_curve([f.curve for f in fits], [f.metrics["points"] for f in fits])
-    warnings = [f"face {r}: {w}" for r, f in enumerate(fits) for w in f.warnings]
+    warnings = [f"{faces_of(r, faces)}: {w}" for r, f in enumerate(fits) for w in f.warnings]
     return ObjectFit(tuple(faces), metrics, shell, notes, curve, warnings, shape)
