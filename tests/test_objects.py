@@ -138,11 +138,11 @@ def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_face
     def shell(closed, distances):
         return SimpleNamespace(faces=[0, 1], closed=closed, distances=distances)
 
-    assert shell_rank(shell(True, far)) > shell_rank(shell(False, near))
-    assert shell_rank(shell(False, near)) > shell_rank(shell(False, far)) > shell_rank(None)
-    assert shell_rank(shell(False, far)) > shell_rank(SimpleNamespace(faces=[], closed=False, distances=None))
+    assert shell_rank(shell(True, far), "p99") > shell_rank(shell(False, near), "p99")
+    assert shell_rank(shell(False, near), "p99") > shell_rank(shell(False, far), "p99") > shell_rank(None, "p99")
+    assert shell_rank(shell(False, far), "p99") > shell_rank(SimpleNamespace(faces=[], closed=False, distances=None), "p99")
     both = np.vstack([far[:1], near[1:]])  # each point measured to its nearer face
-    assert shell_rank(shell(False, both))[1] == pytest.approx(-np.percentile(np.minimum(far[0], near[1]), 99))
+    assert shell_rank(shell(False, both), "p99")[1] == pytest.approx(-np.percentile(np.minimum(far[0], near[1]), 99))
 
 
 def test_a_region_fits_warning_names_its_faces_as_the_json_orders_them():

@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from psonurbs.fitting.pipeline import CURVE_HEADER, FitResult, fit_points
+from psonurbs.fitting.search.tolerance import measure
 from psonurbs.formats.step import step_available
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
@@ -133,12 +134,13 @@ def joined_faces(fits: list[FitResult], points: np.ndarray, tolerance: float, sp
         return None, f"{type(e).__name__}: {e}"
 
 
-def shell_rank(done) -> tuple[bool, float]:
-    """How good a join is, larger better: a closed shell first, then the lower 99th
-    percentile of the points' distances to their nearest face (no join: the worst)."""
+def shell_rank(done, name: str) -> tuple[bool, float]:
+    """How good a join is, larger better: a closed shell first, then the lower tolerance
+    measure ``name`` (p99, max or rms) of the points' distances to their nearest face
+    (no join: the worst)."""
     if done is None or not done.faces:
         return (False, -np.inf)
-    return (bool(done.closed), -float(np.percentile(done.distances.min(axis=0), 99)))
+    return (bool(done.closed), -measure(done.distances.min(axis=0), name))
 
 
 def faces_of(region: int, faces) -> str:
@@ -173,7 +175,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
         done, reason = joined_faces(fits, points, tolerance, regions.spacing)
         if splits:
             unsplit, unsplit_reason = joined_faces(whole[1], points, tolerance, regions.spacing)
-            if shell_rank(unsplit) > shell_rank(done):
+            if shell_rank(unsplit, config.tolerance_measure) > shell_rank(done, config.tolerance_measure):
                 (members, fits), done, reason, splits = whole, unsplit, unsplit_reason, 0
                 joined_notes.append("a split region's faces joined worse than the whole region's: kept whole")
     unclaimed = len(points) - sum(len(m) for m in members)
