@@ -11,7 +11,6 @@ from conftest import ply_bytes, run
 
 from psonurbs.config import FitConfig, config_from_dict
 from psonurbs.errors import ConfigError
-from psonurbs.fitting.parameters.topology import layout_for
 from psonurbs.fitting.pipeline import fit_points
 from psonurbs.fitting.search.tolerance import (
     NetSearch,
@@ -123,20 +122,6 @@ def test_an_excess_in_one_span_is_concentrated_along_that_direction_only():
     excess = np.where(uv[:, 0] < 0.25, 1.0, 0.0)  # a ridge at small u, all along v
     along_u, along_v = span_concentration(uv, excess, surface)
     assert along_u == pytest.approx(4.0) and along_v < 1.5
-
-
-def test_a_closed_directions_spans_past_the_domain_do_not_count():
-    """A cylinder's u knots run on past [0, 1]; an excess spread evenly round it reads
-    even (not grown alone), one in a single span of the eleven reads 11."""
-    layout = layout_for("cylinder", (11, 4), (3, 3))
-    surface = layout.surface(np.zeros((layout.n_free, 3)), np.ones(layout.n_free))
-    assert len(np.unique(surface.knots_u)) > 12  # the periodic knots reach past the domain
-    uv = np.random.default_rng(0).random((4000, 2))
-    along_u, along_v = span_concentration(uv, np.ones(len(uv)), surface)
-    assert along_u < 1.2 and along_v == 1.0
-    assert growths((11, 4), (along_u, along_v), (100, 100))[0] == (15, 6)  # both grow
-    one_span = np.where(uv[:, 0] < 1 / 11, 1.0, 0.0)
-    assert span_concentration(uv, one_span, surface)[0] == pytest.approx(11.0)
 
 
 # ---- the search, end to end ----------------------------------------------------------------

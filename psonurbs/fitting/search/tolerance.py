@@ -126,14 +126,12 @@ class Step:
 
 def span_concentration(uv: np.ndarray, excess: np.ndarray, surface: NurbsSurface) -> tuple[float, float]:
     """Per direction, how unevenly the excess (n,) over the tolerance of the points at
-    parameters uv (n, 2) falls into the surface's knot spans over the domain [0, 1]: the
-    largest span's share times the number of spans (1: even; the number of spans: all in
-    one span). A closed direction's knots run on past the domain; spans there hold no
-    point and are not counted (they would read an even excess as uneven)."""
+    parameters uv (n, 2) falls into the surface's knot spans: the largest span's share times
+    the number of spans (1: even; the number of spans: all in one span)."""
     total = float(excess.sum())
     out = []
     for column, knots in enumerate((surface.knots_u, surface.knots_v)):
-        breaks = np.unique(np.clip(knots, 0.0, 1.0))
+        breaks = np.unique(knots)
         inner = breaks[1:-1]
         if total <= 0 or len(inner) == 0:
             out.append(1.0)
