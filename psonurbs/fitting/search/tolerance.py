@@ -18,7 +18,9 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
              bisecting the fewest control points along it that still meet (growing
              both directions overshoots the one that needed less)
     swarm    with a swarm configured: from the classical net, shrink again with the
-             swarm placing the knots at every size tried. Below the classical net is
+             swarm placing the knots at every size tried, stepping down 1, 2, 4, ...
+             from it before bisecting (its net is usually a row or two below the
+             classical one: fewer of the swarm's fits). Below the classical net is
              where the places of the knots decide; the classical net stays the
              fallback, so the swarm never costs control points
     rational with a swarm configured, where no uniform net meets and their error
@@ -223,9 +225,9 @@ class NetSearch:
     the noise allows (the growth stops there)."""
 
     def __init__(self, evaluate: Callable[[tuple[int, int]], Step], base: tuple[int, int],
-                 largest: tuple[int, int], value: float, floor: float):
+                 largest: tuple[int, int], value: float, floor: float, descend: bool = False):
         self.evaluate, self.base, self.largest = evaluate, base, largest
-        self.value, self.floor = value, floor
+        self.value, self.floor, self.descend = value, floor, descend
         self.steps: dict[tuple[int, int], Step] = {}
 
     def step(self, size: tuple[int, int]) -> Step:
@@ -274,11 +276,21 @@ class NetSearch:
     def shrink(self, size: tuple[int, int], direction: int) -> tuple[int, int]:
         """Bisect the fewest control points along ``direction`` that meet with the other
         direction as in ``size`` (taken to meet). Errors are taken to fall as a net grows
-        in either direction, so a failing net bounds every net it holds."""
+        in either direction, so a failing net bounds every net it holds. With ``descend`` the
+        nets 1, 2, 4, ... below ``size`` are tried first, down to the first that fails, and the
+        bisection runs between it and the last that met: the same net when errors fall with
+        the net, in fewer fits where it lies near ``size``."""
         other = 1 - direction
         fails = [s[direction] for s, step in self.steps.items()
                  if step.achieved > self.value and s[other] >= size[other] and s[direction] < size[direction]]
         low, high = max(fails, default=self.base[direction] - 1), size[direction]
+        down = 1
+        while self.descend and high - low > 1:
+            middle = max(high - down, low + 1)
+            if not self.meets(tuple(middle if k == direction else size[k] for k in (0, 1))):
+                low = middle
+                break
+            high, down = middle, 2 * down
         while high - low > 1:
             middle = (low + high) // 2
             if self.meets(tuple(middle if k == direction else size[k] for k in (0, 1))):
@@ -381,7 +393,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
 
     base = tuple(min(s, m) for s, m in zip(smallest_net(topology, config.orders), largest))
     uniform = NetSearch(lambda size: one_net(size, "uniform"), base, largest, value, NOISE_MARGIN * floor)
-    placed = NetSearch(lambda size: one_net(size, "swarm"), base, largest, value, NOISE_MARGIN * floor) \
+    placed = NetSearch(lambda size: one_net(size, "swarm"), base, largest, value, NOISE_MARGIN * floor, True) \
         if swarm else None
     rational = NetSearch(lambda size: one_net(size, "rational"), base, largest, value, NOISE_MARGIN * floor) \
         if swarm else None
