@@ -216,9 +216,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                "control_points": int(sum(f.metrics["control_points"] for f in faces))}
     if region_config.has_tolerance:
         metrics["tolerance"] = {"value": region_config.tolerance, "measure": config.tolerance_measure,
-                                "met": bool(metrics["p99" if config.tolerance_measure == "p99" else
-                                                    "max_error" if config.tolerance_measure == "max" else "rmse"]
-                                            <= region_config.tolerance)}
+                                "met": measure(distances, config.tolerance_measure) <= region_config.tolerance}
     curve = object_curve([f.curve for f in fits], [f.metrics["points"] for f in fits])
     warnings = [f"{faces_of(r, faces)}: {w}" for r, f in enumerate(fits) for w in f.warnings]
     return ObjectFit(tuple(faces), metrics, shell, notes, curve, warnings, shape)

@@ -284,16 +284,20 @@ class NetSearch:
         fails = [s[direction] for s, step in self.steps.items()
                  if step.achieved > self.value and s[other] >= size[other] and s[direction] < size[direction]]
         low, high = max(fails, default=self.base[direction] - 1), size[direction]
+
+        def meets_at(n: int) -> bool:
+            return self.meets(tuple(n if k == direction else size[k] for k in (0, 1)))
+
         down = 1
         while self.descend and high - low > 1:
             middle = max(high - down, low + 1)
-            if not self.meets(tuple(middle if k == direction else size[k] for k in (0, 1))):
+            if not meets_at(middle):
                 low = middle
                 break
             high, down = middle, 2 * down
         while high - low > 1:
             middle = (low + high) // 2
-            if self.meets(tuple(middle if k == direction else size[k] for k in (0, 1))):
+            if meets_at(middle):
                 high = middle
             else:
                 low = middle
