@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from psonurbs.fitting.leastsq.banded import BandOrder, StackedBandedCholesky
+from psonurbs.fitting.leastsq.banded import BandOrder, StackedBandedCholesky, solve_spd
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
@@ -189,6 +189,45 @@ def test_band_order_puts_a_periodic_direction_in_the_band():
     # natural order for a band it already is
     banded = gap <= reach
     assert BandOrder.for_pattern(banded).half_bandwidth == reach
+
+
+def periodic_spd(n: int, reach: int, seed: int) -> np.ndarray:
+    """A symmetric positive definite (n, n) matrix coupling each unknown of a cycle to its
+    ``reach`` neighbours on either side, shuffled (its band only in another order)."""
+    i = np.arange(n)
+    gap = np.abs(i[:, None] - i[None, :])
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(n, n)) * (np.minimum(gap, n - gap) <= reach)
+    m = (a + a.T) + 4 * n * np.eye(n)
+    shuffle = rng.permutation(n)
+    return m[np.ix_(shuffle, shuffle)]
+
+
+def test_solve_spd_in_a_band_matches_the_dense_solve_and_keeps_its_order():
+    m = periodic_spd(120, 4, seed=0)
+    rhs = np.random.default_rng(1).normal(size=(120, 3))
+    x, order = solve_spd(m, rhs, None)
+    assert 2 * order.half_bandwidth < 120  # solved in a band (the shuffled natural order is full)
+    np.testing.assert_allclose(x, np.linalg.solve(m, rhs), rtol=0, atol=1e-13)
+    other = m * 1.5 + np.eye(120)  # the same pattern: the same order is used again
+    y, again = solve_spd(other, rhs[:, 0], order)
+    assert again is order
+    np.testing.assert_allclose(y, np.linalg.solve(other, rhs[:, 0]), rtol=0, atol=1e-13)
+
+
+def test_solve_spd_finds_a_new_order_for_an_entry_outside_the_band_and_refuses_indefinite():
+    m = periodic_spd(80, 3, seed=2)
+    rhs = np.ones(80)
+    _, order = solve_spd(m, rhs, None)
+    far = np.argsort(order.position)[[0, -1]]  # the two unknowns farthest apart in the band
+    wider = m.copy()
+    wider[far[0], far[1]] = wider[far[1], far[0]] = 0.5
+    x, new = solve_spd(wider, rhs, order)
+    assert new is not order
+    np.testing.assert_allclose(x, np.linalg.solve(wider, rhs), rtol=0, atol=1e-13)
+    m[5, 5] = -1.0
+    with pytest.raises(np.linalg.LinAlgError):
+        solve_spd(m, rhs, order)
 
 
 @pytest.mark.parametrize("name", list(LAYOUTS))

@@ -23,11 +23,12 @@ points are eliminated exactly (Schur complement, as in bundle adjustment):
     d_i = -C_i^-1 (c_i + B_i^T d_net)
 
 Every point's block touches only its knot-span cell's control points, so the sums are
-cell-block Grams (:class:`psonurbs.geometry.rows.CellBlocks`) and the net system is solved by
-Cholesky. Levenberg damping ``mu * mean(diag) * I`` also tames the exact null
-directions of a rational patch (the weights' common scale, their Moebius
-reparametrisation). Log-weights stay inside their bounds; parameters of an open
-direction inside [0, 1], those of a closed one wrap.
+cell-block Grams (:class:`psonurbs.geometry.rows.CellBlocks`) and the net system, whose
+unknowns couple only within those cells, is solved by a Cholesky factorisation in a band
+(:func:`psonurbs.fitting.leastsq.banded.solve_spd`). Levenberg damping ``mu * mean(diag) * I``
+also tames the exact null directions of a rational patch (the weights' common scale,
+their Moebius reparametrisation). Log-weights stay inside their bounds; parameters of an
+open direction inside [0, 1], those of a closed one wrap.
 
 The refined surface is kept only if it earns it (:func:`refined_if_better`): the drop in
 the residual pays for the weights it frees (Akaike), or, for a swarm's particle whose
@@ -39,9 +40,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg as la
 from scipy.spatial import cKDTree
 
+from psonurbs.fitting.leastsq.banded import solve_spd
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares, weighted_rms
 from psonurbs.fitting.prepare.organise import RESOLUTION
 from psonurbs.fitting.search.validation import Z, paired_test, reach
@@ -74,6 +75,7 @@ class JointProblem:
         self.inner = (inner_u, inner_v)
         self.n = layout.n_free
         self.root = np.ones(len(points)) if point_weights is None else np.sqrt(point_weights)  # sqrt(c_i)
+        self.order = None  # the net system's band order (every step's has the same pattern)
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray, uv: np.ndarray) -> dict:
         """Residuals, objective and the basis rows at the given unknowns."""
@@ -106,9 +108,10 @@ class JointProblem:
             gram += chunk_gram
             g += chunk_g
             parts.append(chunk)
-        penalty = np.kron(ev["regulariser"], np.eye(3))
-        gram[:3 * n, :3 * n] += penalty
-        g[:3 * n] += penalty @ control.ravel()
+        penalty = ev["regulariser"]  # (n, n), the same for each coordinate
+        for k in range(3):
+            gram[k:3 * n:3, k:3 * n:3] += penalty
+        g[:3 * n] += (penalty @ control).ravel()
         return {"parts": parts, "control": control, "jl": jl, "gram": gram, "g": g, "residual": res}
 
     def _chunk_normal_equations(self, part: slice, rows: Rows, control: np.ndarray, res: np.ndarray,
@@ -181,7 +184,7 @@ class JointProblem:
             rhs += rhs_part
             terms.append(q)
         schur[np.diag_indices_from(schur)] += damping * np.trace(schur) / len(schur)
-        d_net = la.cho_solve(la.cho_factor(schur, check_finite=False), rhs, check_finite=False)
+        d_net, self.order = solve_spd(schur, rhs, self.order)
         d_control, d_log_w = d_net[:3 * n].reshape(n, 3), d_net[3 * n:]
         d_uv = np.empty((len(lin["residual"]), 2))
 
