@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from psonurbs.fitting.leastsq.banded import BandOrder, StackedBandedCholesky, solve_spd
+from psonurbs.fitting.leastsq.banded import BandOrder, StackedBandedCholesky
 from psonurbs.fitting.leastsq.regularised import RegularisedLeastSquares
 from psonurbs.fitting.search.knot_weight_space import KnotWeightSpace
 from psonurbs.geometry.net import NetLayout
@@ -203,31 +203,31 @@ def periodic_spd(n: int, reach: int, seed: int) -> np.ndarray:
     return m[np.ix_(shuffle, shuffle)]
 
 
-def test_solve_spd_in_a_band_matches_the_dense_solve_and_keeps_its_order():
+def assembled(order: BandOrder, m: np.ndarray, pieces: int = 1) -> np.ndarray:
+    """The band storage of m assembled from its non-zeros, given in ``pieces`` parts whose
+    entries overlap (each entry split between them), as a net system is summed over cells."""
+    r, c = np.nonzero(m)
+    flat, kept = order.places(r, c)
+    return sum(order.gathered(flat[kept], m[r, c][kept] / pieces) for _ in range(pieces))
+
+
+def test_a_system_assembled_in_its_band_solves_as_the_dense_one():
     m = periodic_spd(120, 4, seed=0)
+    order = BandOrder.for_pattern(m != 0)
+    assert 2 * order.half_bandwidth < 120  # the shuffled natural order holds no band
     rhs = np.random.default_rng(1).normal(size=(120, 3))
-    x, order = solve_spd(m, rhs, None)
-    assert 2 * order.half_bandwidth < 120  # solved in a band (the shuffled natural order is full)
-    np.testing.assert_allclose(x, np.linalg.solve(m, rhs), rtol=0, atol=1e-13)
-    other = m * 1.5 + np.eye(120)  # the same pattern: the same order is used again
-    y, again = solve_spd(other, rhs[:, 0], order)
-    assert again is order
-    np.testing.assert_allclose(y, np.linalg.solve(other, rhs[:, 0]), rtol=0, atol=1e-13)
+    band = assembled(order, m)
+    np.testing.assert_allclose(order.solve(band, rhs), np.linalg.solve(m, rhs), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(assembled(order, m, pieces=3), band, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(band[0], m.diagonal()[np.argsort(order.position)], rtol=0, atol=0)
 
 
-def test_solve_spd_finds_a_new_order_for_an_entry_outside_the_band_and_refuses_indefinite():
+def test_a_banded_system_that_is_not_positive_definite_is_refused():
     m = periodic_spd(80, 3, seed=2)
-    rhs = np.ones(80)
-    _, order = solve_spd(m, rhs, None)
-    far = np.argsort(order.position)[[0, -1]]  # the two unknowns farthest apart in the band
-    wider = m.copy()
-    wider[far[0], far[1]] = wider[far[1], far[0]] = 0.5
-    x, new = solve_spd(wider, rhs, order)
-    assert new is not order
-    np.testing.assert_allclose(x, np.linalg.solve(wider, rhs), rtol=0, atol=1e-13)
     m[5, 5] = -1.0
+    order = BandOrder.for_pattern(m != 0)
     with pytest.raises(np.linalg.LinAlgError):
-        solve_spd(m, rhs, order)
+        order.solve(assembled(order, m), np.ones(80))
 
 
 @pytest.mark.parametrize("name", list(LAYOUTS))

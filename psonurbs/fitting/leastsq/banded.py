@@ -1,6 +1,6 @@
 """Banded factorisation: P symmetric banded systems at once, with selected inversion (the
-swarm's fitness), and one system in LAPACK's band storage (:func:`solve_spd`, the joint
-refinement's net system of 4 unknowns per control point).
+swarm's fitness), and one system assembled and solved in LAPACK's band storage
+(:class:`BandOrder`: the joint refinement's net system of 4 unknowns per control point).
 
 The normal matrix of a tensor-product net couples control points (i, j) and (i', j')
 only if |i - i'| <= p and |j - j'| <= q, so in row-major order it is banded with half
@@ -63,37 +63,28 @@ class BandOrder:
         width = int(np.abs(best[rows] - best[cols]).max(initial=0))
         return cls(best, width, BLOCK)
 
-    def banded(self, matrix: np.ndarray) -> np.ndarray | None:
-        """A symmetric (n, n) ``matrix`` reordered into LAPACK's lower band storage,
-        ``band[d, j] = M'[j + d, j]`` (M' the reordered matrix), (w + 1, n); None when one of
-        its non-zeros lies outside the band (its pattern is not the one this order was made for)."""
-        n, w = len(matrix), self.half_bandwidth
-        order = np.argsort(self.position)  # the unknown at each position
-        band = np.zeros((w + 1, n))
-        for d in range(w + 1):
-            band[d, :n - d] = matrix[order[d:], order[:n - d]]
-        inside = np.count_nonzero(band[0]) + 2 * np.count_nonzero(band[1:])
-        return band if inside == np.count_nonzero(matrix) else None
+    def places(self, rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the entries M[rows, columns] (same shape) of a symmetric matrix go in
+        LAPACK's lower band storage of the reordered matrix, ``band[d, j] = M'[j + d, j]``
+        flattened ((w + 1) n): (flat index, kept), kept False for an entry above the
+        diagonal (its mirror image below carries it)."""
+        pr, pc = self.position[rows], self.position[columns]
+        kept = pr >= pc
+        return (pr - pc) * len(self.position) + pc, kept
 
+    def gathered(self, flat: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Values (k,) at flat band places (k,) summed into the band storage, (w + 1, n)."""
+        n = len(self.position)
+        return np.bincount(flat, values, (self.half_bandwidth + 1) * n).reshape(self.half_bandwidth + 1, n)
 
-def solve_spd(matrix: np.ndarray, rhs: np.ndarray, order: BandOrder | None) -> tuple[np.ndarray, BandOrder]:
-    """``M^-1 rhs`` for a symmetric positive definite (n, n) M and rhs (n,) or (n, k), and
-    the band order it was solved in (to pass again with the next matrix of the same pattern).
-
-    Where M's non-zeros lie in a band of half-width w < n / 2 in some order (a net's
-    unknowns couple only through shared knot-span cells and the smoothness stencil), the
-    banded Cholesky factorisation costs n w^2 instead of the dense n^3 / 3; a given
-    ``order`` is reused while M's non-zeros stay in its band, else a new one is found.
-    Raises numpy.linalg.LinAlgError unless M is positive definite."""
-    band = None if order is None else order.banded(matrix)
-    if band is None:
-        order = BandOrder.for_pattern(matrix != 0)
-        band = order.banded(matrix)
-    if 2 * order.half_bandwidth >= len(matrix):  # no band to speak of
-        return la.cho_solve(la.cho_factor(matrix, check_finite=False), rhs, check_finite=False), order
-    factor = la.cholesky_banded(band, lower=True, check_finite=False)
-    at = order.position
-    return la.cho_solve_banded((factor, True), rhs[np.argsort(at)], check_finite=False)[at], order
+    def solve(self, band: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """``M^-1 rhs`` for rhs (n,) or (n, k), M symmetric positive definite given by its
+        reordered lower ``band`` (:meth:`places`): LAPACK's banded Cholesky factorisation,
+        n w^2 operations against the dense n^3 / 3. Raises numpy.linalg.LinAlgError unless
+        M is positive definite."""
+        factor = la.cholesky_banded(band, lower=True, check_finite=False)
+        at = self.position
+        return la.cho_solve_banded((factor, True), rhs[np.argsort(at)], check_finite=False)[at]
 
 
 class StackedBandedCholesky:
