@@ -27,10 +27,11 @@ cell-block Grams (:class:`psonurbs.geometry.rows.CellBlocks`), each cell's (4m, 
 added straight into the band storage of the net system, whose unknowns couple only
 within cells and the regulariser's stencil: in reverse Cuthill-McKee order
 (:class:`psonurbs.fitting.leastsq.banded.BandOrder`) a band of half-width w, assembled in
-O(n w) memory and factorised in O(n w^2) (a 53 x 20 cylinder net: 4,240 unknowns, w about
-600). Levenberg damping ``mu * mean(diag) * I`` also tames the exact null directions of a rational patch (the weights' common scale,
-their Moebius reparametrisation). Log-weights stay inside their bounds; parameters of an
-open direction inside [0, 1], those of a closed one wrap.
+O(n w) memory and factorised in O(n w^2) (a 53 x 20 cylinder net: 4,240 unknowns, w 933).
+Levenberg damping ``mu * mean(diag) * I`` also tames the exact null directions of a
+rational patch (the weights' common scale, their Moebius reparametrisation). Log-weights
+stay inside their bounds; parameters of an open direction inside [0, 1], those of a
+closed one wrap.
 
 The refined surface is kept only if it earns it (:func:`refined_if_better`): the drop in
 the residual pays for the weights it frees (Akaike), or, for a swarm's particle whose
