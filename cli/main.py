@@ -335,6 +335,8 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
     """Run the batch with the progress bars; report each cloud as it finishes."""
     from tqdm import tqdm
 
+    from psonurbs import progress
+
     show = _progress_enabled(quiet)
     several = len(work) > 1
     clouds_bar = tqdm(total=len(work), desc="clouds", unit="cloud", file=sys.stderr,
@@ -346,9 +348,16 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
 
     def on_iteration(iteration: int, best: float, mean: float) -> None:
         if swarm_bar is not None:
-            if swarm_bar.n < swarm_bar.total:
+            if swarm_bar.total is None or swarm_bar.n < swarm_bar.total:
                 swarm_bar.update(1)
             swarm_bar.set_postfix_str(f"best {best:.3g}", refresh=False)
+
+    def on_stage(text: str, iterations: int | None) -> None:  # a net of a search, a region of an object
+        swarm_bar.set_description_str(f"{work[0].path.name}: {text}", refresh=False)
+        swarm_bar.set_postfix_str("", refresh=False)
+        swarm_bar.bar_format = None if iterations and iterations > 1 else "{desc} [{elapsed}]"  # no swarm: the time
+        swarm_bar.reset(total=iterations)
+        swarm_bar.total = iterations
 
     def on_row(row: Row) -> None:
         if swarm_bar is not None:
@@ -358,8 +367,9 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
         clouds_bar.update(1)
 
     try:
-        return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
-                         on_row=on_row, on_iteration=on_iteration, fit=fitter, scheduler=scheduler)
+        with progress.reporting(on_stage if swarm_bar is not None and show else None):
+            return run_batch(work, out_dir, formats=formats, workers=jobs, gate=gate,
+                             on_row=on_row, on_iteration=on_iteration, fit=fitter, scheduler=scheduler)
     finally:
         if swarm_bar is not None:
             swarm_bar.close()

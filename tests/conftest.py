@@ -125,6 +125,20 @@ def franke(n=300, seed=4, noise=0.01) -> np.ndarray:
 GOOD = np.array([[x, y, x * y] for x in range(4) for y in range(4)], dtype=float)
 
 
+def can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, noise: float = 5e-4) -> np.ndarray:
+    """A closed can: a cylinder's wall and two flat discs, sampled area-uniformly (N, 3)."""
+    rng = np.random.default_rng(seed)
+    wall, disc = 2 * np.pi * radius * height, np.pi * radius ** 2
+    counts = rng.multinomial(n, np.array([wall, disc, disc]) / (wall + 2 * disc))
+    t = 2 * np.pi * rng.random(counts[0])
+    parts = [np.column_stack([radius * np.cos(t), radius * np.sin(t), height * rng.random(counts[0])])]
+    for count, z in zip(counts[1:], (0.0, height)):
+        r, a = radius * np.sqrt(rng.random(count)), 2 * np.pi * rng.random(count)
+        parts.append(np.column_stack([r * np.cos(a), r * np.sin(a), np.full(count, z)]))
+    p = np.concatenate(parts)
+    return p + noise * np.linalg.norm(np.ptp(p, axis=0)) * rng.standard_normal(p.shape)
+
+
 def ply_bytes(points) -> bytes:
     """A binary little-endian PLY of the points (double x, y, z)."""
     points = np.ascontiguousarray(points, dtype="<f8").reshape(-1, 3)

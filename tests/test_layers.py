@@ -18,14 +18,15 @@ REPO = Path(__file__).resolve().parents[1]
 # layer -> the layers it may import (besides itself)
 ALLOWED = {
     "errors": set(),
+    "progress": set(),  # the stage a long fit is at, for whoever shows progress
     "config": {"errors"},
     "geometry": {"errors"},
-    "fitting": {"geometry", "config", "errors"},
+    "fitting": {"geometry", "config", "errors", "progress"},
     "formats": {"geometry", "config", "errors"},
-    "objects": {"fitting", "formats", "geometry", "config", "errors"},  # whole objects: regions, faces, joins
-    "run": {"objects", "fitting", "formats", "geometry", "config", "errors"},
-    "cli": {"run", "formats", "config", "errors"},  # parses, calls and reports: no numerics
-    "top": {"fitting", "formats", "geometry", "config", "errors"},  # psonurbs/__init__.py
+    "objects": {"fitting", "formats", "geometry", "config", "errors", "progress"},  # whole objects: regions, faces, joins
+    "run": {"objects", "fitting", "formats", "geometry", "config", "errors", "progress"},
+    "cli": {"run", "formats", "config", "errors", "progress"},  # parses, calls and reports: no numerics
+    "top": {"fitting", "formats", "geometry", "config", "errors", "progress"},  # psonurbs/__init__.py
 }
 
 

@@ -7,22 +7,9 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import can
 
 from psonurbs.objects.regions import CREASE, folded_variation, segment, split_where_facing
-
-
-def can(n: int, seed: int = 0, radius: float = 0.5, height: float = 1.2, noise: float = 5e-4) -> np.ndarray:
-    """A closed can: a cylinder's wall and two flat discs, sampled area-uniformly (N, 3)."""
-    rng = np.random.default_rng(seed)
-    wall, disc = 2 * np.pi * radius * height, np.pi * radius ** 2
-    counts = rng.multinomial(n, np.array([wall, disc, disc]) / (wall + 2 * disc))
-    t = 2 * np.pi * rng.random(counts[0])
-    parts = [np.column_stack([radius * np.cos(t), radius * np.sin(t), height * rng.random(counts[0])])]
-    for count, z in zip(counts[1:], (0.0, height)):
-        r, a = radius * np.sqrt(rng.random(count)), 2 * np.pi * rng.random(count)
-        parts.append(np.column_stack([r * np.cos(a), r * np.sin(a), np.full(count, z)]))
-    p = np.concatenate(parts)
-    return p + noise * np.linalg.norm(np.ptp(p, axis=0)) * rng.standard_normal(p.shape)
 
 
 def test_a_can_splits_at_its_two_creases_and_a_sphere_or_a_rough_sheet_stays_one_region():

@@ -14,11 +14,13 @@ included: the object's rmse, max and 99th percentile. Without OpenCASCADE (the o
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
+from psonurbs import progress
 from psonurbs.fitting.pipeline import CURVE_HEADER, FitResult, fit_points
 from psonurbs.fitting.search.tolerance import measure
 from psonurbs.formats.step import step_available
@@ -157,6 +159,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     """The object's faces; a cloud that is one region is one face, fitted as one surface
     with ``topology: auto`` (its :class:`FitResult`)."""
     points = np.asarray(points, float)
+    progress.stage("regions grown on the normals, parted at creases")
     regions = segment(points, None if config.patches == "auto" else int(config.patches))
     if regions.count <= 1:
         return fit(points, config.with_overrides(source="patches: auto", topology="auto", patches=1),
@@ -165,15 +168,24 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     joined = step_available()
     region_config = face_config(config, diagonal, joined)
     members = [regions.members(r) for r in range(regions.count)]
-    fits: list[FitResult] = [fit(points[m], region_config, on_iteration=on_iteration) for m in members]
+    parts = itertools.count(1)
+    searched = region_config.has_tolerance  # the search reports each net it fits; else one fit's swarm
+
+    def fitted(member: np.ndarray, name: str) -> FitResult:
+        with progress.within(f"{name} ({len(member)} points)", None if searched else region_config.swarm.iterations):
+            return fit(points[member], region_config, on_iteration=on_iteration)
+
+    fits: list[FitResult] = [fitted(m, f"region {r + 1} of {regions.count}") for r, m in enumerate(members)]
     whole = (list(members), list(fits))
     splits = split_missed(points, regions, members, fits,
-                          lambda m: fit(points[m], region_config, on_iteration=on_iteration))
+                          lambda m: fitted(m, f"part {next(parts)} of a region split where it missed the tolerance"))
     shell, shape, distances, done, joined_notes = None, None, None, None, []
     if joined:
         tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
+        progress.stage(f"{len(fits)} faces cut and sewn")
         done, reason = joined_faces(fits, points, tolerance, regions.spacing)
         if splits:
+            progress.stage(f"the unsplit regions' {len(whole[1])} faces cut and sewn, to compare")
             unsplit, unsplit_reason = joined_faces(whole[1], points, tolerance, regions.spacing)
             if shell_rank(unsplit, config.tolerance_measure) > shell_rank(done, config.tolerance_measure):
                 (members, fits), done, reason, splits = whole, unsplit, unsplit_reason, 0

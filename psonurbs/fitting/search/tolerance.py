@@ -64,6 +64,7 @@ from typing import Callable
 
 import numpy as np
 
+from psonurbs import progress
 from psonurbs.config import FIELDS, SPHERE_MIN_V
 from psonurbs.errors import PsonurbsError
 from psonurbs.fitting.budget import check_budget
@@ -86,6 +87,8 @@ EDGE = 1e-9  # a foot parameter this close to 0 or 1 is on the edge of the domai
 NOISE_MARGIN = 1.05  # an error within this factor of what the noise allows cannot fall further
 RESEARCHES = 2  # times the search goes on past a net that met on the held-out points and missed on all
 RESEARCH_MARGIN = 1.05  # ... by at most this factor: a miss at the margin, not a search gone wrong
+KNOTS = {  # how a progress display names the kinds of fit
+    "uniform": "uniform knots", "swarm": "knots by the swarm", "rational": "knots and weights by the swarm"}
 
 
 def measure(distances: np.ndarray, name: str) -> float:
@@ -383,10 +386,13 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
         return dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology,
                                    swarm=swarm_config)
 
+    tried = 0
+
     def one_net(size: tuple[int, int], knots: str) -> Step:
-        nonlocal topology, scores
-        start = time.perf_counter()
-        result = fit(train, sized(size, knots), on_iteration=on_iteration, swarm_weights=knots == "rational")
+        nonlocal topology, scores, tried
+        start, net, tried = time.perf_counter(), sized(size, knots), tried + 1
+        progress.stage(f"searched net {tried}: {size[0]}x{size[1]}, {KNOTS[knots]}", net.swarm.iterations)
+        result = fit(train, net, on_iteration=on_iteration, swarm_weights=knots == "rational")
         topology = result.topology  # auto: chosen once, at the first net
         scores = result.info.get("topology_scores", scores)
         uv, dist = _held_distances(result.surface, judged)
@@ -403,8 +409,10 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
         if swarm else None
 
     def deliver(step: Step):
-        result = fit(points, sized(step.net_size, step.knots), on_iteration=on_iteration,
-                     swarm_weights=step.knots == "rational")
+        net = sized(step.net_size, step.knots)
+        progress.stage(f"the chosen net {step.net_size[0]}x{step.net_size[1]}, {KNOTS[step.knots]}, on every point",
+                       net.swarm.iterations)
+        result = fit(points, net, on_iteration=on_iteration, swarm_weights=step.knots == "rational")
         return result, measure(result.distances, name)
 
     best, result, achieved, steps = searched(uniform, placed, rational, deliver, value)
