@@ -237,7 +237,8 @@ def fit(ctx: click.Context, clouds: tuple[str, ...], config_path: Path | None, o
     summary, and the others are still fitted. A fit that fails a self-check
     (no ground truth needed) is written, warned about on stderr and marked
     'suspect' in the summary. The same inputs give
-    byte-identical outputs (3dm files aside: openNURBS stamps them).
+    byte-identical outputs (3dm files aside: openNURBS stamps them; and a
+    tolerance search's seconds per net).
 
     Examples:
 
