@@ -12,6 +12,7 @@ from conftest import ply_bytes, run
 from psonurbs.config import FitConfig, config_from_dict
 from psonurbs.errors import ConfigError
 from psonurbs.fitting.pipeline import fit_points
+from psonurbs.fitting.prepare.outliers import MIN_POINTS
 from psonurbs.fitting.search.tolerance import (
     NetSearch,
     Step,
@@ -21,6 +22,7 @@ from psonurbs.fitting.search.tolerance import (
     searched,
     smallest_net,
     span_concentration,
+    tolerance_sentence,
 )
 from psonurbs.geometry.nurbs import NurbsSurface
 
@@ -185,6 +187,13 @@ def test_auto_topology_is_chosen_at_the_first_net_and_reported_with_the_delivere
     assert "rejected" not in scores["open"]
     assert result.notes[0].startswith("tolerance") and result.notes[1].startswith("topology auto: open")
     assert result.info["tolerance"]["met"]
+
+
+def test_a_noise_the_local_test_did_not_judge_is_said_so_not_printed_as_zero():
+    unmet = {"value": 1e-4, "measure": "p99", "met": False, "achieved": 5.6e-4, "net_size": [4, 4]}
+    assert tolerance_sentence({**unmet, "noise": 2.4e-4}).endswith("with 4x4 control points (noise 2.4e-04)")
+    assert tolerance_sentence({**unmet, "noise": 0.0}).endswith(
+        f"with 4x4 control points (noise not judged: fewer than {MIN_POINTS} points)")
 
 
 def test_a_tolerance_below_the_noise_is_not_met_and_says_so(tmp_path):

@@ -70,7 +70,7 @@ from psonurbs.errors import PsonurbsError
 from psonurbs.fitting.budget import check_budget
 from psonurbs.fitting.parameters.topology import layout_for, topology_note
 from psonurbs.fitting.prepare.organise import organise
-from psonurbs.fitting.prepare.outliers import local_outliers
+from psonurbs.fitting.prepare.outliers import MIN_POINTS, local_outliers
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
@@ -212,13 +212,15 @@ def inside(uv: np.ndarray, bounded: tuple[bool, bool]) -> np.ndarray:
 
 def tolerance_sentence(tolerance: dict) -> str:
     """The summary's words for ``fit.tolerance``: 'tolerance 3.0e-04 (p99) met: 2.7e-04 with
-    9x7 control points', or 'not met: best ... (noise ...)'."""
+    9x7 control points', or 'not met: best ... (noise ...)'. A noise of 0 is one the local
+    test did not judge (a cloud of fewer than its ``MIN_POINTS``): said so, not printed as 0."""
     nu, nv = tolerance["net_size"]
     head = f"tolerance {tolerance['value']:.1e} ({tolerance['measure']})"
     if tolerance["met"]:
         return f"{head} met: {tolerance['achieved']:.1e} with {nu}x{nv} control points"
-    return (f"{head} not met: best {tolerance['achieved']:.1e} with {nu}x{nv} control points "
-            f"(noise {tolerance['noise']:.1e})")
+    noise = f"noise {tolerance['noise']:.1e}" if tolerance["noise"] > 0 else \
+        f"noise not judged: fewer than {MIN_POINTS} points"
+    return f"{head} not met: best {tolerance['achieved']:.1e} with {nu}x{nv} control points ({noise})"
 
 
 class NetSearch:
