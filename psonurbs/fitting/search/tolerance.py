@@ -235,23 +235,11 @@ class NetSearch:
         self.evaluate, self.base, self.largest = evaluate, base, largest
         self.value, self.floor, self.descend = value, floor, descend
         self.steps: dict[tuple[int, int], Step] = {}
-        self.previewed: dict[tuple[int, int], Step] = {}  # fitted, not yet tried by the search itself
 
     def step(self, size: tuple[int, int]) -> Step:
         if size not in self.steps:
-            self.steps[size] = self.previewed.pop(size, None) or self.evaluate(size)
+            self.steps[size] = self.evaluate(size)
         return self.steps[size]
-
-    def preview(self, size: tuple[int, int]) -> Step:
-        """A net fitted ahead of the search, which does not count it as tried (its growths
-        still take it, at no cost), so the search's path is the one it would take without."""
-        if size not in self.steps and size not in self.previewed:
-            self.previewed[size] = self.evaluate(size)
-        return self.steps.get(size) or self.previewed[size]
-
-    def all_steps(self) -> list[Step]:
-        """Every net fitted, tried or previewed."""
-        return list(self.steps.values()) + [step for size, step in self.previewed.items() if size not in self.steps]
 
     def meets(self, size: tuple[int, int]) -> bool:
         return self.step(size).achieved <= self.value
@@ -336,8 +324,7 @@ def gains_with_weights(uniform: NetSearch, rational: NetSearch, start: tuple[int
     """Whether the rational search is worth running where no uniform net met: the uniform
     error stalled above the noise, and the swarm choosing knots and weights gains (by
     :data:`PLATEAU`) on the best uniform error at the largest uniform net tried, where the
-    polynomial search ended (a probe, :meth:`NetSearch.preview`: the search's own path stays
-    the one it takes from the smallest net). Where the
+    polynomial search ended (a probe, which the rational search then keeps). Where the
     whole NURBS space gains nothing even there it is not searched from the smallest net
     up: a region that is not one surface (a bottle's body with its shoulder) misses at
     every net either way."""
@@ -346,7 +333,7 @@ def gains_with_weights(uniform: NetSearch, rational: NetSearch, start: tuple[int
     if best.achieved <= uniform.floor:
         return False
     largest = max(tried, key=lambda s: s.net_size[0] * s.net_size[1])
-    return start is not None or rational.preview(largest.net_size).achieved < PLATEAU * best.achieved
+    return start is not None or rational.step(largest.net_size).achieved < PLATEAU * best.achieved
 
 
 def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch | None, deliver: Callable,
@@ -376,7 +363,7 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
             found = rational.grown(starts["rational"])
             if found is not None:
                 rational.shrunk(found)
-        steps = [step for search in searches.values() if search is not None for step in search.all_steps()]
+        steps = [step for search in searches.values() if search is not None for step in search.steps.values()]
         best = chosen_step(steps, value)
         result, achieved = deliver(best)
         if achieved > value and best.knots == "swarm":  # on every point the placed knots miss: the uniform net
