@@ -286,25 +286,6 @@ def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered
 
 
 
-def test_where_the_weights_gain_nothing_at_the_largest_uniform_net_no_rational_search_runs():
-    """A region that is not one surface: uniform knots stall far above the tolerance and
-    the swarm's knots and weights do no better (its validation keeps the uniform start):
-    one probe at the largest uniform net, then the best uniform net is delivered."""
-    value = 1.0
-
-    def search(error, kind):
-        return NetSearch(lambda size: Step(size, error(size), 0.0, (1.0, 1.0), kind), (4, 4), (20, 20), value, 0.1)
-
-    def stalled(size):
-        return 6.0 + 0.1 / (size[0] * size[1])
-
-    uniform, rational = search(stalled, "uniform"), search(stalled, "rational")
-    never = search(lambda size: pytest.fail("no uniform net met: no placed knots below it"), "swarm")
-    best, _, _, steps = searched(uniform, never, rational, lambda step: (None, step.achieved), value)
-    largest = max(uniform.steps, key=lambda size: size[0] * size[1])
-    assert list(rational.steps) == [largest] and best.knots == "uniform"
-
-
 def test_where_uniform_knots_stall_above_the_noise_the_swarm_places_knots_and_weights():
     """Uniform knots stall at twice the tolerance (a turn no uniform span follows); knots
     and weights placed by the swarm meet from 36 control points on: the rational search,

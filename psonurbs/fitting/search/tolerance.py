@@ -26,9 +26,8 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
     rational with a swarm configured, where no uniform net meets and their error
              stalls above the noise (uniform polynomial spans cannot follow the
              shape: a rounded rim's quarter circle, flat on one side, turning within
-             one span), and where that whole NURBS space, the swarm placing the knots
-             and choosing the weights too, gains at the largest uniform net tried
-             (:func:`gains_with_weights`): grow and shrink in it from the smallest net
+             one span): grow and shrink from the smallest net with the swarm placing
+             the knots and choosing the weights too, the whole NURBS space
 
 and each stops at the largest net allowed (``net_size`` when given, else the budget of
 :mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
@@ -320,30 +319,13 @@ def chosen_step(steps: list[Step], value: float) -> Step:
     return min(steps, key=lambda s: (s.achieved, s.net_size[0] * s.net_size[1]))
 
 
-def gains_with_weights(uniform: NetSearch, rational: NetSearch, start: tuple[int, int] | None) -> bool:
-    """Whether the rational search is worth running where no uniform net met: the uniform
-    error stalled above the noise, and the swarm choosing knots and weights gains (by
-    :data:`PLATEAU`) on the best uniform error at the largest uniform net tried, where the
-    polynomial search ended (a probe, which the rational search then keeps). Where the
-    whole NURBS space gains nothing even there it is not searched from the smallest net
-    up: a region that is not one surface (a bottle's body with its shoulder) misses at
-    every net either way."""
-    tried = list(uniform.steps.values())
-    best = chosen_step(tried, uniform.value)
-    if best.achieved <= uniform.floor:
-        return False
-    largest = max(tried, key=lambda s: s.net_size[0] * s.net_size[1])
-    return start is not None or rational.step(largest.net_size).achieved < PLATEAU * best.achieved
-
-
 def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch | None, deliver: Callable,
              value: float):
     """The nets searched and the chosen one delivered: (step, result, achieved, steps).
 
     The uniform search first, then the placed knots' below its net (``placed``), or,
-    where no uniform net meets, their error stalls above the noise and the weights gain
-    (:func:`gains_with_weights`), the rational search from the smallest net
-    (``rational``; both None without a swarm); the fewest
+    where no uniform net meets and their error stalls above the noise, the rational
+    search from the smallest net (``rational``; both None without a swarm); the fewest
     control points that met (:func:`chosen_step`) are fitted on every point,
     ``deliver(step) -> (result, achieved)``. Placed knots that miss there give way to
     the uniform net that met. A uniform or rational net that met on the held-out points
@@ -359,7 +341,7 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
             meeting = uniform.shrunk(meeting)
             if placed is not None:  # below the classical net, where the knots' places decide
                 placed.shrunk(meeting)
-        elif rational is not None and gains_with_weights(uniform, rational, starts["rational"]):
+        elif rational is not None and chosen_step(list(uniform.steps.values()), value).achieved > uniform.floor:
             found = rational.grown(starts["rational"])
             if found is not None:
                 rational.shrunk(found)
