@@ -357,8 +357,8 @@ def _run_and_report(work: list[Job], out_dir: Path, formats: tuple[str, ...], jo
         swarm_bar.set_description_str(f"{work[0].path.name}: {text}", refresh=False)
         swarm_bar.set_postfix_str("", refresh=False)
         swarm_bar.bar_format = None if iterations and iterations > 1 else "{desc} [{elapsed}]"  # no swarm: the time
-        swarm_bar.reset(total=iterations)
-        swarm_bar.total = iterations
+        swarm_bar.reset()
+        swarm_bar.total = iterations  # (reset(total=None) would keep the last stage's total)
 
     def on_row(row: Row) -> None:
         if swarm_bar is not None:

@@ -6,7 +6,7 @@ such step reports a stage: a sentence and the number of swarm iterations its fit
 call ``on_iteration`` with (1 for a fit without a swarm, None when it runs no fit)::
 
     with progress.reporting(lambda text, iterations: print(text, iterations)):
-        fit_points(points, config)   # "net 9x13, uniform knots (4th net tried)", 1
+        fit_points(points, config)   # "searched net 4: 9x13, uniform knots", 1
 
 Stages nest: within ``progress.within("face 2 of 3")`` every stage reported reads "face 2
 of 3: ...". Nothing is reported without a receiver (the default), and a thread or process
