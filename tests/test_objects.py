@@ -132,6 +132,25 @@ def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_face
     assert shell_rank(shell(False, both), "p99")[1] == pytest.approx(-np.percentile(np.minimum(far[0], near[1]), 99))
 
 
+def test_a_narrow_face_is_held_by_the_points_it_fits_and_an_extension_by_none():
+    """Pieces of a cut, each point counted for the piece nearest it: a wide face and a
+    dense one; a narrow band whose area is mostly its extension (sparse by area, every
+    one of its points within the tolerance of it); an extension that collects stray
+    points five tolerances off; a reversed piece (negative area) holding the same."""
+    from psonurbs.objects.join import held_pieces
+
+    tolerance, own = 1e-3, [3000, 200, 600, 100, 100]
+    off = [0.1, 0.1, 0.1, 5.0, 5.0]  # each piece's points' distance to it, in tolerances
+    areas = np.array([1.0, 0.5, 0.2, 0.5, -1.0])
+    distances = np.ones((5, sum(own)))
+    start = np.cumsum([0] + own)
+    for k in range(5):
+        distances[k, start[k]:start[k + 1]] = off[k] * tolerance
+    held, counts = held_pieces(distances, areas, sum(own), tolerance)
+    assert counts.tolist() == own
+    assert held.tolist() == [True, True, True, False, False]
+
+
 def test_a_region_fits_warning_names_its_faces_as_the_json_orders_them():
     from types import SimpleNamespace
 

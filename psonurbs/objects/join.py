@@ -11,8 +11,9 @@ data hold kept and sewn into one shell (a solid where it closes), through OpenCA
    distances to the trimmed pieces); a piece is kept when it holds points at
    least ``HELD_DENSITY`` of the density of the pieces holding most of them, and at
    least half the share of the cloud a region needs (a sliver holding a few points is
-   no face). The parts of
-   an extension past a crease, and of a face inside the solid, hold none.
+   no face), or when that many of them lie within the tolerance of it (a narrow face's
+   area is mostly its extension). The parts of an extension past a crease, and of a
+   face inside the solid, hold none.
 4. **Sew** (``BRepBuilderAPI_Sewing`` at the tolerance): the kept pieces already share
    their cut edges; a shell with no free edge is made a solid (oriented outward).
 5. **Trims**: each kept piece's wires read back in its surface's (u, v) as loops
@@ -151,15 +152,23 @@ def face_distances(faces: list[tuple[NurbsSurface, Trim | None]], points: np.nda
     return distances
 
 
-def held_pieces(distances: np.ndarray, areas: np.ndarray, points: int) -> tuple[np.ndarray, np.ndarray]:
+def held_pieces(distances: np.ndarray, areas: np.ndarray, points: int, tolerance: float
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Which pieces the data hold, from the points' distances (F, N) to the pieces and
     the pieces' areas (F,), and each one's count of points: each point counts for the
-    piece nearest it."""
-    counts = np.bincount(np.argmin(distances, axis=0), minlength=len(areas))
-    density = counts / np.maximum(areas, 1e-300)
+    piece nearest it. A piece is held by its points' density (against the pieces holding
+    most of them), or by the points it fits: as many within ``tolerance`` of it as a
+    piece needs. A narrow face (a bottle's shoulder, a band between two creases) reads
+    sparse by area, its extension past the data being most of it, though every point
+    nearest it lies on it."""
+    nearest = np.argmin(distances, axis=0)
+    counts = np.bincount(nearest, minlength=len(areas))
+    fitted = np.bincount(nearest[distances.min(axis=0) <= tolerance], minlength=len(areas))
+    density = counts / np.maximum(np.abs(areas), 1e-300)  # a reversed face's area reads negative
     main = counts >= 0.05 * points
     reference = np.median(density[main]) if main.any() else density.max()
-    return (density >= HELD_DENSITY * reference) & (counts >= 0.5 * MIN_SHARE * points), counts
+    enough = 0.5 * MIN_SHARE * points
+    return ((density >= HELD_DENSITY * reference) & (counts >= enough)) | (fitted >= enough), counts
 
 
 def _loops(face, surface: NurbsSurface) -> Trim | None:
@@ -258,7 +267,7 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
     outlined = [k for k, (_, trim, _) in enumerate(described) if trim is not None]  # a sliver has no loop
     distances = np.full((len(pieces), len(points)), np.inf)
     distances[outlined] = face_distances([described[k][:2] for k in outlined], points)
-    held, counts = held_pieces(distances, np.array([area for _, _, area in described]), len(points))
+    held, counts = held_pieces(distances, np.array([area for _, _, area in described]), len(points), tolerance)
     kept = np.flatnonzero(held)
     sewn = sew([pieces[k] for k in kept], tolerance)
     joined = []
