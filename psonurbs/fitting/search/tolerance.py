@@ -12,11 +12,14 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
              orders allow (an open or closed direction: its order; a sphere's v at
              least 3), *grow* by x GROWTH and at least +1, in the direction whose knot
              spans hold the excess over the tolerance unevenly (the error of a ridge
-             sits in a few spans across it), in both when neither does, until a net
-             meets the tolerance; *bisect* back between the last net that failed and
-             the first that met; *shrink* one direction at a time (the larger first),
-             bisecting the fewest control points along it that still meet (growing
-             both directions overshoots the one that needed less)
+             sits in a few spans across it), in both when neither does (a direction
+             grown alone whose error falls, but slower than the square root of the
+             control points it adds, is not what limits the fit: the other is grown
+             too and the faster fall per control point kept), until a net meets the
+             tolerance; *bisect* back between the last net that failed and the first
+             that met; *shrink* one direction at a time (the larger first), bisecting
+             the fewest control points along it that still meet (growing both
+             directions overshoots the one that needed less)
     swarm    with a swarm configured: from the classical net, shrink again with the
              swarm placing the knots at every size tried, stepping down 1, 2, 4, ...
              from it before bisecting (its net is usually a row or two below the
@@ -81,6 +84,7 @@ HOLD_OUT = 0.2  # share of the points the search's fits do not see (drawn once, 
 MIN_HELD_OUT = 50  # a smaller cloud is judged on the points it was fitted on
 GROWTH = 1.3  # a net grows by this factor (and at least one control point) per direction
 UNEVEN = 1.5  # a direction is grown alone when its spans' excess is this much more concentrated
+WEAK = 0.5  # a direction grown alone whose error fell at a lower rate than this gives the other a try
 PLATEAU = 0.97  # a grown net gains when its error is below this share of the best so far
 GAUSSIAN_P99 = 2.576  # the 99th percentile of |N(0, 1)|
 EDGE = 1e-9  # a foot parameter this close to 0 or 1 is on the edge of the domain
@@ -147,6 +151,11 @@ def span_concentration(uv: np.ndarray, excess: np.ndarray, surface: NurbsSurface
     return tuple(out)
 
 
+def grown_count(n: int, most: int) -> int:
+    """The control points along a direction after one growth: x GROWTH, at least +1, at most ``most``."""
+    return min(max(n + 1, math.ceil(n * GROWTH)), most)
+
+
 def growths(size: tuple[int, int], uneven: tuple[float, float], largest: tuple[int, int]) -> list[tuple[int, int]]:
     """The nets grown from ``size``, the most promising first: the direction whose excess
     is concentrated (:func:`span_concentration`) alone, else both; then the others. Each
@@ -156,8 +165,7 @@ def growths(size: tuple[int, int], uneven: tuple[float, float], largest: tuple[i
     order = [first] + [d for d in ((True, True), (True, False), (False, True)) if d != first]
     out = []
     for directions in order:
-        new = tuple(min(max(n + 1, math.ceil(n * GROWTH)), most) if grow else n
-                    for n, most, grow in zip(size, largest, directions))
+        new = tuple(grown_count(n, most) if grow else n for n, most, grow in zip(size, largest, directions))
         if new != size and new not in out:
             out.append(new)
     return out
@@ -252,6 +260,10 @@ class NetSearch:
             if not untried:
                 break
             step = self.step(untried[0])
+            if step.achieved > self.value and self.weak(best, step):
+                other = self.other_direction(best, step)
+                if other is not None and (other.achieved <= self.value or rate(best, other) > rate(best, step)):
+                    step = other
             if step.achieved <= self.value:
                 meeting = step.net_size
                 break
@@ -270,6 +282,26 @@ class NetSearch:
                 high = middle
             else:
                 low = middle
+
+    @staticmethod
+    def weak(best: Step, grown: Step) -> bool:
+        """A net grown along one direction alone whose error fell, by more than the
+        plateau, but slower than the square root of the control points it added
+        (:func:`rate` below WEAK): that direction is not what limits the fit, yet the
+        plateau rule alone would go on growing it. Along the direction that does, the
+        error falls at least as the spans' length (across a kink, the least smooth shape
+        a span holds; a smooth shape's as its power the order). An error that did not
+        fall is the plateau rule's: the next growth is tried from the same net."""
+        alone = sum(a != b for a, b in zip(best.net_size, grown.net_size)) == 1
+        return alone and grown.achieved < PLATEAU * best.achieved and rate(best, grown) < WEAK
+
+    def other_direction(self, best: Step, grown: Step) -> Step | None:
+        """The net grown from ``best`` along the direction ``grown`` left as it was (by x
+        GROWTH and at least +1, within the largest net), fitted; None when it cannot grow."""
+        direction = 0 if grown.net_size[0] == best.net_size[0] else 1
+        size = tuple(grown_count(n, most) if k == direction else n
+                     for k, (n, most) in enumerate(zip(best.net_size, self.largest)))
+        return None if size == best.net_size else self.step(size)
 
     def shrunk(self, size: tuple[int, int]) -> tuple[int, int]:
         """From a net that meets, the fewest control points along each direction in turn
@@ -307,6 +339,12 @@ class NetSearch:
             else:
                 low = middle
         return tuple(high if k == direction else size[k] for k in (0, 1))
+
+
+def rate(best: Step, grown: Step) -> float:
+    """What a grown net bought: log(error fall) / log(control points added), the
+    exponent of the error's fall with the net (negative when the error rose)."""
+    return math.log(best.achieved / grown.achieved) / math.log(math.prod(grown.net_size) / math.prod(best.net_size))
 
 
 def chosen_step(steps: list[Step], value: float) -> Step:
