@@ -163,7 +163,8 @@ def held_pieces(distances: np.ndarray, areas: np.ndarray, points: int, tolerance
     nearest it lies on it."""
     nearest = np.argmin(distances, axis=0)
     counts = np.bincount(nearest, minlength=len(areas))
-    fitted = np.bincount(nearest[distances.min(axis=0) <= tolerance], minlength=len(areas))
+    on = distances[nearest, np.arange(distances.shape[1])] <= tolerance  # (N,): within it of its piece
+    fitted = np.bincount(nearest[on], minlength=len(areas))
     density = counts / np.maximum(np.abs(areas), 1e-300)  # a reversed face's area reads negative
     main = counts >= 0.05 * points
     reference = np.median(density[main]) if main.any() else density.max()
