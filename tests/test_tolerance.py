@@ -321,3 +321,29 @@ def test_where_uniform_knots_stall_above_the_noise_the_swarm_places_knots_and_we
     unused = search(lambda size: pytest.fail("the noise stops the uniform search: no swarm"), "rational", 2.5)
     at_noise = search(lambda size: 2.0, floor=2.5)
     assert searched(at_noise, never, unused, lambda step: (None, step.achieved), value)[0].knots == "uniform"
+
+
+def test_a_uniform_net_that_misses_on_the_held_out_points_but_meets_on_all_is_delivered_without_weights():
+    """No uniform net meets on the held-out points (their least error 1.06 times the
+    tolerance at 36 control points and more); on every point that least-error net meets,
+    so it is delivered, once, and no rational net is fitted. Where it misses on every
+    point too, the rational search runs and its meeting net is delivered."""
+    value = 1.0
+
+    def search(error, kind="uniform"):
+        return NetSearch(lambda size: Step(size, error(size), 0.0, (1.0, 1.0), kind), (4, 4), (8, 8), value, 0.1)
+
+    held_out = lambda size: 1.06 + 36.0 / (size[0] * size[1]) ** 2  # noqa: E731
+    never = search(lambda size: pytest.fail("no rational net once a uniform one meets on every point"), "rational")
+    delivered = []
+
+    def deliver(step, on_all=0.98):
+        delivered.append((step.knots, step.net_size))
+        return None, on_all if step.knots == "uniform" else step.achieved
+
+    best, _, achieved, _ = searched(search(held_out), None, never, deliver, value)
+    assert best.knots == "uniform" and best.net_size == (8, 8) and achieved == 0.98
+    assert delivered == [("uniform", (8, 8))]
+    rational = search(lambda size: 36.0 / (size[0] * size[1]), "rational")
+    best, _, achieved, _ = searched(search(held_out), None, rational, lambda step: deliver(step, 1.02), value)
+    assert best.knots == "rational" and achieved <= value

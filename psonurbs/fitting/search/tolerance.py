@@ -29,8 +29,10 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
     rational with a swarm configured, where no uniform net meets and their error
              stalls above the noise (uniform polynomial spans cannot follow the
              shape: a rounded rim's quarter circle, flat on one side, turning within
-             one span): grow and shrink from the smallest net with the swarm placing
-             the knots and choosing the weights too, the whole NURBS space
+             one span), unless the uniform net of the least error meets on every
+             point (at the margin a held-out p99 is a few percent off either way:
+             that net is delivered): grow and shrink from the smallest net with the
+             swarm placing the knots and choosing the weights too, the whole NURBS space
 
 and each stops at the largest net allowed (``net_size`` when given, else the budget of
 :mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
@@ -362,8 +364,9 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
     """The nets searched and the chosen one delivered: (step, result, achieved, steps).
 
     The uniform search first, then the placed knots' below its net (``placed``), or,
-    where no uniform net meets and their error stalls above the noise, the rational
-    search from the smallest net (``rational``; both None without a swarm); the fewest
+    where no uniform net meets, their error stalls above the noise and the least-error
+    one misses on every point too, the rational search from the smallest net
+    (``rational``; both None without a swarm); each step is delivered once; the fewest
     control points that met (:func:`chosen_step`) are fitted on every point,
     ``deliver(step) -> (result, achieved)``. Placed knots that miss there give way to
     the uniform net that met. A uniform or rational net that met on the held-out points
@@ -373,22 +376,31 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
     time again: only a marginal miss is worth it)."""
     searches = {"uniform": uniform, "swarm": placed, "rational": rational}
     starts: dict[str, tuple[int, int] | None] = {"uniform": None, "rational": None}
+    delivered: dict[Step, tuple] = {}
+
+    def delivery(step: Step) -> tuple:
+        if step not in delivered:
+            delivered[step] = deliver(step)
+        return delivered[step]
+
     for attempt in range(RESEARCHES + 1):
         meeting = uniform.grown(starts["uniform"])
         if meeting is not None:
             meeting = uniform.shrunk(meeting)
             if placed is not None:  # below the classical net, where the knots' places decide
                 placed.shrunk(meeting)
-        elif rational is not None and chosen_step(list(uniform.steps.values()), value).achieved > uniform.floor:
-            found = rational.grown(starts["rational"])
-            if found is not None:
-                rational.shrunk(found)
+        elif rational is not None:
+            nearest = chosen_step(list(uniform.steps.values()), value)
+            if nearest.achieved > uniform.floor and delivery(nearest)[1] > value:
+                found = rational.grown(starts["rational"])
+                if found is not None:
+                    rational.shrunk(found)
         steps = [step for search in searches.values() if search is not None for step in search.steps.values()]
         best = chosen_step(steps, value)
-        result, achieved = deliver(best)
+        result, achieved = delivery(best)
         if achieved > value and best.knots == "swarm":  # on every point the placed knots miss: the uniform net
             best = uniform.steps[meeting]
-            result, achieved = deliver(best)
+            result, achieved = delivery(best)
         if achieved <= value or achieved > RESEARCH_MARGIN * value or best.achieved > value \
                 or attempt == RESEARCHES:
             return best, result, achieved, steps
