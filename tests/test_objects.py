@@ -172,6 +172,35 @@ def test_a_surface_extended_past_its_domain_is_the_same_surface_there():
     assert longer.shape == s.shape
 
 
+def test_an_open_face_is_bounded_to_within_reach_of_its_data_and_a_closed_one_is_not():
+    """A unit square patch whose data fill a disc of radius 0.2 at its centre: bounded by
+    one loop, inside it every surface point within the reach (0.1) of a datum, half a
+    reach in from that every point inside; data up to the edges leave it whole."""
+    from conftest import open_surface
+
+    from psonurbs.geometry.nurbs import NurbsSurface
+    from psonurbs.objects.join import within_reach
+
+    t = np.linspace(0.0, 1.0, 4)
+    plane = NurbsSurface(3, 3, [0] * 4 + [1] * 4, [0] * 4 + [1] * 4,
+                         np.stack([*np.meshgrid(t, t, indexing="ij"), np.zeros((4, 4))], axis=-1), np.ones((4, 4)))
+    rng = np.random.default_rng(3)
+    r, a = 0.2 * np.sqrt(rng.random(4000)), 2 * np.pi * rng.random(4000)
+    disc = np.column_stack([0.5 + r * np.cos(a), 0.5 + r * np.sin(a), np.zeros(4000)])
+    trim = within_reach(plane, disc, 0.1)
+    assert trim is not None and len(trim.loops) == 1
+    uv = rng.random((20000, 2))
+    from_centre = np.hypot(uv[:, 0] - 0.5, uv[:, 1] - 0.5)
+    inside = trim.contains(uv)
+    assert from_centre[inside].max() < 0.3 + 0.01 and np.all(inside[from_centre < 0.25])
+    grid = np.column_stack([g.ravel() for g in np.meshgrid(t, t)] + [np.zeros(16)])
+    assert within_reach(plane, np.vstack([disc, grid]), 0.4) is None  # every point of it within reach
+    closed = open_surface(polynomial=True)
+    closed = NurbsSurface(closed.degree_u, closed.degree_v, closed.knots_u, closed.knots_v, closed.control_points,
+                          closed.weights, closed_u=True)
+    assert within_reach(closed, disc, 0.1) is None
+
+
 def test_a_sphere_faces_poles_stay_points_when_it_is_extended_and_an_open_end_grows():
     """Past a pole the continued end span would open a ring round it, an edge no other face
     meets (a cup fitted as a sphere's topology kept two such holes in its shell)."""

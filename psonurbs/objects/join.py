@@ -5,6 +5,11 @@ data hold kept and sewn into one shell (a solid where it closes), through OpenCA
    of the object's diagonal (at least ``EXTEND_SPACINGS`` point spacings) in space, its
    end spans' polynomials continued (:meth:`NurbsSurface.restricted`, exact), so that
    two faces whose data stop a crease's band short of each other cross.
+   An open face (no closed direction) is then bounded to where it lies within
+   ``BOUND`` reaches of its own data (:func:`within_reach`): free corners the data
+   never held (a narrow band's patch, its corners flung far out) are no part of any
+   face, while every crossing with a neighbour (a crease's band from the data, within
+   the one reach the extension gives) stays well inside.
 2. **Cut** (OpenCASCADE's general fuse, ``BOPAlgo_Builder``): every face split along its
    intersections with the others; closed directions go in as periodic B-splines.
 3. **Keep** (:func:`held_pieces`): each point is given to the piece nearest it (exact
@@ -28,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from psonurbs.fitting.finish.footprint import EDGE_OUTSET
-from psonurbs.formats.step import occ_surface, sew
+from psonurbs.formats.step import occ_face, occ_surface, sew
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 from psonurbs.geometry.trim import Trim, distances_to_face, polygon_loop, signed_area
@@ -41,6 +46,8 @@ HELD_DENSITY = 0.25  # a piece is kept when its points per area reach this share
 EDGE_SAMPLES = 48  # points per edge of a trim loop read back from OpenCASCADE
 POLE = 1e-9  # an end's edge shorter than this many reaches is a point
 FLARE = 3.0  # an extended end's edge lies at most this many reaches from where the surface ended
+BOUND = 2.0  # an open face is bounded to within this many reaches of its data
+REACH_CELLS = 96  # the (u, v) grid on which an open face's bound is traced
 
 
 @dataclass(frozen=True)
@@ -126,6 +133,38 @@ def _flaring(grown: NurbsSurface, ranges, t: np.ndarray, most: float) -> list[bo
                     for x in (new, old)]
             out.append(bool(np.max(np.linalg.norm(ends[0] - ends[1], axis=1)) > most))
     return out
+
+
+def within_reach(surface: NurbsSurface, data: np.ndarray, reach: float, cells: int = REACH_CELLS) -> Trim | None:
+    """The part of an open surface within ``reach`` of its data (M, 3) as one outer loop
+    in its (u, v): the contour at ``reach`` of d(u, v), the distance from the surface's
+    point at (u, v) to the nearest datum, traced on a (cells + 1)^2 grid (the domain's
+    edge counted as beyond reach, so the loop closes along it), the largest loop only
+    (holes and islands left to the cut). None when no sample lies beyond reach (the
+    whole surface is kept) or the surface closes in a direction."""
+    from scipy.spatial import cKDTree
+
+    from psonurbs.geometry.contour import contours, simplify_closed
+
+    if surface.closed_u or surface.closed_v or len(data) == 0:
+        return None
+    t = np.linspace(0.0, 1.0, cells + 1)
+    uu, vv = np.meshgrid(t, t, indexing="ij")
+    d = cKDTree(data).query(surface.evaluate(uu.ravel(), vv.ravel()))[0].reshape(uu.shape)
+    if d.max() <= reach:
+        return None
+    beyond = 2.0 * float(d.max()) + reach  # the border: outside, the loop runs along the domain's edge
+    field = np.pad(d, 1, constant_values=beyond)
+    edge = np.concatenate([[-1e-9], t, [1.0 + 1e-9]])
+    loops = [np.clip(loop, 0.0, 1.0) for loop in contours(field, edge, edge, reach)]
+    loops = [loop for loop in loops if len(loop) >= 3]
+    if not loops:
+        return None
+    outer = max(loops, key=lambda loop: abs(signed_area(loop)))
+    outer = simplify_closed(outer, 0.25 / cells)
+    if signed_area(outer) < 0:
+        outer = outer[::-1]
+    return Trim((polygon_loop(outer),))
 
 
 def _count(shape, kind) -> int:
@@ -234,9 +273,11 @@ def _edges_in_order(wire, face) -> list:
     return edges
 
 
-def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spacing: float) -> Joined:
-    """The faces (each a region's fitted surface, cloud units) extended, cut, kept where
-    the data (N, 3) hold them and sewn at ``tolerance``."""
+def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spacing: float,
+         data: list[np.ndarray]) -> Joined:
+    """The faces (each a region's fitted surface, cloud units) extended, bounded within
+    reach of their own data (``data[k]``: face k's points (M_k, 3)), cut, kept where the
+    data (N, 3) hold them and sewn at ``tolerance``."""
     from OCP.BOPAlgo import BOPAlgo_Builder
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
     from OCP.BRepGProp import BRepGProp
@@ -247,8 +288,10 @@ def join(surfaces: list[NurbsSurface], points: np.ndarray, tolerance: float, spa
     diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
     reach = max(EXTEND * diagonal, EXTEND_SPACINGS * spacing)
     grown = [extended_face(s, reach) for s in surfaces]
+    bounds = [within_reach(s, own, BOUND * reach) for s, own in zip(grown, data)]
     builder, arguments = BOPAlgo_Builder(), List_TopoDS_Shape()
-    faces = [BRepBuilderAPI_MakeFace(occ_surface(s, periodic=True), 1e-7).Face() for s in grown]
+    faces = [BRepBuilderAPI_MakeFace(occ_surface(s, periodic=True), 1e-7).Face() if bound is None
+             else occ_face(s, bound) for s, bound in zip(grown, bounds)]
     for face in faces:
         arguments.Append(face)
     builder.SetArguments(arguments)

@@ -124,14 +124,15 @@ def split_missed(points: np.ndarray, regions: Regions, members: list[np.ndarray]
     return kept
 
 
-def joined_faces(fits: list[FitResult], points: np.ndarray, tolerance: float, spacing: float):
-    """The faces of ``fits`` cut and sewn (:func:`psonurbs.objects.join.join`): (Joined,
-    None), or (None, why) when OpenCASCADE fails (its failures are many and rare: the
-    faces then stay apart)."""
+def joined_faces(fits: list[FitResult], members: list[np.ndarray], points: np.ndarray, tolerance: float,
+                 spacing: float):
+    """The faces of ``fits`` (fitted to ``points[members[k]]``) cut and sewn
+    (:func:`psonurbs.objects.join.join`): (Joined, None), or (None, why) when
+    OpenCASCADE fails (its failures are many and rare: the faces then stay apart)."""
     from .join import join
 
     try:
-        return join([f.surface for f in fits], points, tolerance, spacing), None
+        return join([f.surface for f in fits], points, tolerance, spacing, [points[m] for m in members]), None
     except Exception as e:
         return None, f"{type(e).__name__}: {e}"
 
@@ -183,10 +184,10 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
     if joined:
         tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
         progress.stage(f"{len(fits)} faces cut and sewn")
-        done, reason = joined_faces(fits, points, tolerance, regions.spacing)
+        done, reason = joined_faces(fits, members, points, tolerance, regions.spacing)
         if splits:
             progress.stage(f"the unsplit regions' {len(whole[1])} faces cut and sewn, to compare")
-            unsplit, unsplit_reason = joined_faces(whole[1], points, tolerance, regions.spacing)
+            unsplit, unsplit_reason = joined_faces(whole[1], whole[0], points, tolerance, regions.spacing)
             if shell_rank(unsplit, config.tolerance_measure) > shell_rank(done, config.tolerance_measure):
                 (members, fits), done, reason, splits = whole, unsplit, unsplit_reason, 0
                 joined_notes.append("a split region's faces joined worse than the whole region's: kept whole")
