@@ -149,8 +149,7 @@ def within_reach(surface: NurbsSurface, data: np.ndarray, reach: float, cells: i
     if surface.closed_u or surface.closed_v or len(data) == 0:
         return None
     t = np.linspace(0.0, 1.0, cells + 1)
-    uu, vv = np.meshgrid(t, t, indexing="ij")
-    d = cKDTree(data).query(surface.evaluate(uu.ravel(), vv.ravel()))[0].reshape(uu.shape)
+    d = cKDTree(data).query(surface.evaluate_grid(t, t).reshape(-1, 3))[0].reshape(len(t), len(t))
     if d.max() <= reach:
         return None
     beyond = 2.0 * float(d.max()) + reach  # the border: outside, the loop runs along the domain's edge
