@@ -304,8 +304,8 @@ def test_a_net_that_meets_on_the_held_out_points_but_not_on_all_is_not_delivered
 def test_where_uniform_knots_stall_above_the_noise_the_swarm_places_knots_and_weights():
     """Uniform knots stall at twice the tolerance (a turn no uniform span follows); knots
     and weights placed by the swarm meet from 36 control points on: the rational search,
-    grown from the smallest net and shrunk, delivers its smallest meeting net. At the
-    noise no swarm runs."""
+    grown from the uniform net of the least error and shrunk, delivers its smallest
+    meeting net. At the noise no swarm runs."""
     value = 1.0
 
     def search(error, kind="uniform", floor=0.1):
@@ -321,6 +321,29 @@ def test_where_uniform_knots_stall_above_the_noise_the_swarm_places_knots_and_we
     unused = search(lambda size: pytest.fail("the noise stops the uniform search: no swarm"), "rational", 2.5)
     at_noise = search(lambda size: 2.0, floor=2.5)
     assert searched(at_noise, never, unused, lambda step: (None, step.achieved), value)[0].knots == "uniform"
+
+
+def test_the_rational_search_starts_at_the_uniform_net_of_the_least_error():
+    """Uniform knots stall (their least error at 8 x 8, the largest net); the rational
+    search's first fit is that net, none of the smaller nets on the way up from 4 x 4 is
+    fitted with weights, and the shrinking still finds the fewest control points whose
+    rational fit meets (48: 6 x 8)."""
+    value = 1.0
+    fitted = []
+
+    def rational_error(size):
+        fitted.append(size)
+        return 48.0 / (size[0] * size[1])
+
+    def search(error, kind):
+        return NetSearch(lambda size: Step(size, error(size), 0.0, (1.0, 1.0), kind), (4, 4), (8, 8), value, 0.1)
+
+    uniform = search(lambda size: 1.5 + 8.0 / (size[0] * size[1]), "uniform")
+    best, _, achieved, _ = searched(uniform, None, search(rational_error, "rational"),
+                                    lambda step: (None, step.achieved), value)
+    assert min(uniform.steps.values(), key=lambda s: s.achieved).net_size == (8, 8)
+    assert fitted[0] == (8, 8) and (4, 4) not in fitted
+    assert best.knots == "rational" and best.net_size == (6, 8) and achieved == 1.0
 
 
 def test_a_uniform_net_that_misses_on_the_held_out_points_but_meets_on_all_is_delivered_without_weights():

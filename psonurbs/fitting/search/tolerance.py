@@ -31,8 +31,12 @@ edge of the domain, beyond the points the fit saw, is left out of the judgement,
              shape: a rounded rim's quarter circle, flat on one side, turning within
              one span), unless the uniform net of the least error meets on every
              point (at the margin a held-out p99 is a few percent off either way:
-             that net is delivered): grow and shrink from the smallest net with the
-             swarm placing the knots and choosing the weights too, the whole NURBS space
+             that net is delivered): grow and shrink with the swarm placing the knots
+             and choosing the weights too, the whole NURBS space, from that net of the
+             least error: below it the uniform nets have missed already, and a rational
+             net that meets there is found by the shrinking (errors taken to fall as a
+             net grows, as the shrinking takes them), without the rational fits on the
+             way up (each costs one and a half to twice a uniform one)
 
 and each stops at the largest net allowed (``net_size`` when given, else the budget of
 :mod:`psonurbs.fitting.budget`), when no growth of the best net so far gains
@@ -365,7 +369,7 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
 
     The uniform search first, then the placed knots' below its net (``placed``), or,
     where no uniform net meets, their error stalls above the noise and the least-error
-    one misses on every point too, the rational search from the smallest net
+    one misses on every point too, the rational search from that least-error net
     (``rational``; both None without a swarm); each step is delivered once; the fewest
     control points that met (:func:`chosen_step`) are fitted on every point,
     ``deliver(step) -> (result, achieved)``. Placed knots that miss there give way to
@@ -392,7 +396,7 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
         elif rational is not None:
             nearest = chosen_step(list(uniform.steps.values()), value)
             if nearest.achieved > uniform.floor and delivery(nearest)[1] > value:
-                found = rational.grown(starts["rational"])
+                found = rational.grown(starts["rational"] or nearest.net_size)
                 if found is not None:
                     rational.shrunk(found)
         steps = [step for search in searches.values() if search is not None for step in search.steps.values()]
