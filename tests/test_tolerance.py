@@ -370,3 +370,25 @@ def test_a_uniform_net_that_misses_on_the_held_out_points_but_meets_on_all_is_de
     rational = search(lambda size: 36.0 / (size[0] * size[1]), "rational")
     best, _, achieved, _ = searched(search(held_out), None, rational, lambda step: deliver(step, 1.02), value)
     assert best.knots == "rational" and achieved <= value
+
+
+def test_a_net_re_judged_on_every_point_is_not_delivered_again():
+    """The uniform 8 x 8 meets on the held-out points and misses on all by 3%: it takes
+    the all-points figure and, still the least-error uniform net, decides whether the
+    rational search runs; that judgement reuses its delivery, one fit on every point."""
+    value = 1.0
+
+    def search(error, kind):
+        return NetSearch(lambda size: Step(size, error(size), 0.0, (1.0, 1.0), kind), (4, 4), (8, 8), value, 0.1)
+
+    delivered = []
+
+    def deliver(step):
+        delivered.append((step.knots, step.net_size))
+        return None, 1.03 if step.knots == "uniform" else step.achieved
+
+    uniform = search(lambda size: 0.99 if size == (8, 8) else 1.5 + 8.0 / (size[0] * size[1]), "uniform")
+    best, _, achieved, _ = searched(uniform, None, search(lambda size: 48.0 / (size[0] * size[1]), "rational"),
+                                    deliver, value)
+    assert best.knots == "rational" and achieved <= value
+    assert delivered.count(("uniform", (8, 8))) == 1

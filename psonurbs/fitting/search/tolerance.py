@@ -380,12 +380,13 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
     time again: only a marginal miss is worth it)."""
     searches = {"uniform": uniform, "swarm": placed, "rational": rational}
     starts: dict[str, tuple[int, int] | None] = {"uniform": None, "rational": None}
-    delivered: dict[Step, tuple] = {}
+    delivered: dict[tuple[str, tuple[int, int]], tuple] = {}  # by kind and net: a step re-judged is the same fit
 
     def delivery(step: Step) -> tuple:
-        if step not in delivered:
-            delivered[step] = deliver(step)
-        return delivered[step]
+        key = (step.knots, step.net_size)
+        if key not in delivered:
+            delivered[key] = deliver(step)
+        return delivered[key]
 
     for attempt in range(RESEARCHES + 1):
         meeting = uniform.grown(starts["uniform"])
