@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -16,6 +17,7 @@ from psonurbs.fitting.prepare.outliers import MIN_POINTS
 from psonurbs.fitting.search.tolerance import (
     NetSearch,
     Step,
+    fit_again,
     growths,
     measure,
     noise_allows,
@@ -239,7 +241,10 @@ def test_the_outputs_of_a_search(tmp_path):
     assert result.exit_code == 0, result.stderr
     document = json.loads((tmp_path / "out" / "bump.json").read_text())
     tolerance = document["fit"]["tolerance"]
-    assert list(tolerance) == ["value", "relative", "measure", "achieved", "met", "net_size", "noise", "searched"]
+    assert list(tolerance) == ["value", "relative", "measure", "achieved", "met", "net_size", "knots", "noise",
+                               "searched"]
+    assert {"net_size": tolerance["net_size"], "knots": tolerance["knots"]} in [
+        {"net_size": s["net_size"], "knots": s["knots"]} for s in tolerance["searched"]]  # the delivered net's kind
     diagonal = document["metrics"]["bbox_diagonal"]
     assert tolerance["value"] == 0.004 and tolerance["relative"] == pytest.approx(0.004 / diagonal)
     assert tolerance["measure"] == "p99" and tolerance["met"] and tolerance["achieved"] <= 0.004
@@ -392,3 +397,28 @@ def test_a_net_re_judged_on_every_point_is_not_delivered_again():
                                     deliver, value)
     assert best.knots == "rational" and achieved <= value
     assert delivered.count(("uniform", (8, 8))) == 1
+
+
+def test_a_fit_again_is_one_fit_at_the_delivered_net_kind_and_topology():
+    """A region's fit delivered a rational 6 x 5 open sheet (topology auto); fitted again to fewer
+    points it is one fit, at 6 x 5 with weights, open, no tolerance (no search), its figure
+    measured on the new points; a uniform net is fitted again without the swarm."""
+    config = FitConfig(tolerance=0.01, topology="auto", swarm=SMALL_SWARM)
+    points = quarter_cylinder(200)
+    calls = []
+
+    def fake_fit(p, net, on_iteration=None, swarm_weights=True):
+        calls.append((len(p), net.net_size, net.topology, net.has_tolerance, swarm_weights, net.swarm.iterations))
+        return fit_points(p, dataclasses.replace(net, swarm=dataclasses.replace(net.swarm, particles=1, iterations=1)))
+
+    for knots, weights, iterations in (("rational", True, 8), ("uniform", False, 1)):
+        previous = fit_points(points, config.with_overrides(tolerance=None, topology="open", net_size=(6, 5)))
+        previous.info["tolerance"] = {"value": 0.01, "relative": None, "measure": "p99", "achieved": 0.5,
+                                      "met": False, "net_size": [6, 5], "knots": knots, "noise": 0.0, "searched": []}
+        calls.clear()
+        again = fit_again(points[:150], config, previous, fake_fit)
+        assert calls == [(150, (6, 5), "open", False, weights, iterations)]
+        achieved = again.info["tolerance"]["achieved"]
+        assert achieved == pytest.approx(np.percentile(again.distances, 99)) and achieved < 0.01
+        assert again.info["tolerance"]["met"] and again.info["tolerance"]["net_size"] == [6, 5]
+        assert again.notes[0].startswith("tolerance 1.0e-02 (p99) met")

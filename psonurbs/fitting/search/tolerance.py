@@ -84,7 +84,7 @@ from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.projection import closest_parameters
 
 __all__ = ["HOLD_OUT", "GROWTH", "growths", "measure", "noise_allows", "smallest_net", "fit_to_tolerance",
-           "tolerance_sentence"]
+           "fit_again", "net_config", "tolerance_sentence"]
 
 HOLD_OUT = 0.2  # share of the points the search's fits do not see (drawn once, from the seed)
 MIN_HELD_OUT = 50  # a smaller cloud is judged on the points it was fitted on
@@ -413,6 +413,35 @@ def searched(uniform: NetSearch, placed: NetSearch | None, rational: NetSearch |
         starts[best.knots] = best.net_size
 
 
+def net_config(config, size: tuple[int, int], knots: str, topology: str):
+    """The config of one net of the search: ``size`` control points, no tolerance, the
+    given topology; the swarm off for uniform knots (one particle, one iteration)."""
+    swarm = config.swarm if knots != "uniform" else dataclasses.replace(config.swarm, particles=1, iterations=1)
+    return dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology,
+                               swarm=swarm)
+
+
+def fit_again(points: np.ndarray, config, previous, fit: Callable, on_iteration=None):
+    """``previous`` (a fit to ``config``'s tolerance) fitted once more to ``points`` at the
+    net, kind of knots and topology it delivered, no search: a fit whose points changed a
+    little (a few moved to another face) keeps the net the search chose for them. Its
+    ``info["tolerance"]`` is the previous one's, the figure measured on ``points``."""
+    tolerance = previous.info["tolerance"]
+    net = net_config(config, tuple(tolerance["net_size"]), tolerance["knots"], previous.topology)
+    progress.stage(f"the net {tolerance['net_size'][0]}x{tolerance['net_size'][1]}, {KNOTS[tolerance['knots']]}, "
+                   "on the points kept", net.swarm.iterations)
+    result = fit(np.asarray(points, float), net, on_iteration=on_iteration,
+                 swarm_weights=tolerance["knots"] == "rational")
+    achieved = measure(result.distances, tolerance["measure"])
+    again = dict(tolerance, achieved=achieved, met=bool(achieved <= tolerance["value"]))
+    result.info["tolerance"] = again
+    if "topology_scores" in previous.info:
+        result.info["topology_scores"] = previous.info["topology_scores"]
+        result.notes.insert(0, topology_note(previous.topology, previous.info["topology_scores"]))
+    result.notes.insert(0, tolerance_sentence(again))
+    return result
+
+
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
     """The fit of the smallest net meeting the config's tolerance (see the module
     docstring). ``fit(points, config, on_iteration)`` is the fit of one net
@@ -438,10 +467,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     swarm = config.strategy == "hybrid" and config.swarm.particles * config.swarm.iterations > 1
 
     def sized(size: tuple[int, int], knots: str):
-        swarm_config = config.swarm if knots != "uniform" else dataclasses.replace(config.swarm, particles=1,
-                                                                                   iterations=1)
-        return dataclasses.replace(config, net_size=size, tolerance=None, tolerance_rel=None, topology=topology,
-                                   swarm=swarm_config)
+        return net_config(config, size, knots, topology)
 
     tried = 0
 
@@ -475,7 +501,7 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     best, result, achieved, steps = searched(uniform, placed, rational, deliver, value)
     tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
                  "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
-                 "noise": sigma, "searched": [s.to_dict() for s in steps]}
+                 "knots": best.knots, "noise": sigma, "searched": [s.to_dict() for s in steps]}
     result.info["tolerance"] = tolerance
     if scores is not None:  # the delivered fit was told its topology: the choice is the first net's
         result.info["topology_scores"] = scores
