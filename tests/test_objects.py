@@ -114,6 +114,50 @@ def test_a_region_that_misses_the_tolerance_is_split_and_the_split_kept_only_whe
     assert split_missed(cup, regions, members, fits, lambda m: pytest.fail("a region that meets is fitted again")) == 0
 
 
+def test_a_wall_s_points_in_a_top_s_region_move_to_the_wall_and_the_top_is_fitted_again():
+    """A top (z = 0, 0 <= x <= 1, 0 <= y <= 3) and a wall below its edge (x = 1,
+    0 <= y <= 1, -1 <= z <= 0), the top's region holding five of the wall's points
+    0.01-0.02 below their crease: they lie on the wall's surface and its data touch them,
+    so they move to its region; the top, whose surface misses them at a tolerance of
+    0.005, is fitted again (the wall, which gained them, is not). Where the top's fit
+    missed its tolerance, its surface says nothing of where its points lie: nothing moves
+    (the split fits it anew). At 0.05 the top's surface holds them: they move, nothing is
+    fitted again. A point below the edge 1.5 past the wall's data, on the wall's plane but
+    touching only the top's data, stays."""
+    from types import SimpleNamespace
+
+    from psonurbs.geometry.basis import clamped_knots
+    from psonurbs.geometry.nurbs import NurbsSurface
+    from psonurbs.objects.whole import moved_to_nearest
+
+    def plane(origin, a, b, info=None):
+        net = np.array([[origin, np.add(origin, b)], [np.add(origin, a), np.add(origin, a) + b]], float)
+        return SimpleNamespace(surface=NurbsSurface(1, 1, clamped_knots(2, 1), clamped_knots(2, 1), net, np.ones((2, 2))),
+                               info=info or {})
+
+    rng = np.random.default_rng(2)
+    top = np.column_stack([rng.random(1200), 3 * rng.random(1200), np.zeros(1200)])
+    wall = np.column_stack([np.ones(300), rng.random(300), -rng.random(300)])
+    strays = np.column_stack([np.ones(5), rng.random(5), -0.01 - 0.01 * rng.random(5)])
+    far = [[1.0, 2.5, -0.02]]
+    points = np.vstack([top, wall, strays, far])
+    wall_face = plane([1, 0, -1], [0, 0, 1], [0, 1, 0])
+    refitted = []
+
+    def fit_region(member, previous):
+        refitted.append(len(member))
+        return previous
+
+    missed = {"tolerance": {"achieved": 0.02, "value": 0.005}}
+    for tolerance, info, moved, again in ((0.005, None, 5, [1201]), (0.005, missed, 0, []), (0.05, None, 5, [])):
+        top_face = plane([0, 0, 0], [1, 0, 0], [0, 3, 0], info)
+        members, fits = [np.r_[np.arange(1200), np.arange(1500, 1506)], np.arange(1200, 1500)], [top_face, wall_face]
+        refitted.clear()
+        assert moved_to_nearest(points, members, fits, tolerance, fit_region) == (moved, len(again))
+        assert len(members[1]) == 300 + moved and refitted == again
+        assert 1505 in members[0] and fits[1] is wall_face
+
+
 def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_faces_win():
     from types import SimpleNamespace
 

@@ -4,8 +4,10 @@ With ``patches: auto`` (or N) the cloud is split into regions
 (:mod:`psonurbs.objects.regions`); a cloud that stays one region is fitted as one surface
 with ``topology: auto``, as ``patches: 1`` would with it. Otherwise each region is fitted
 by the single-surface pipeline with ``topology: auto`` (a cylinder's wall, a flat cap, a sphere's end each get
-theirs) and the object's tolerance in cloud units, untrimmed; a region whose fit misses the
-tolerance is split where its normals turn (:func:`split_missed`), the split kept where its
+theirs) and the object's tolerance in cloud units, untrimmed; a region's points that lie
+nearer a neighbouring region's surface move to it, a region fitted again at its net
+where it lost one its fit strained for (:func:`moved_to_nearest`);
+a region whose fit misses the tolerance is split where its normals turn (:func:`split_missed`), the split kept where its
 faces join into a better shell (:func:`shell_rank`); the faces are then extended,
 cut where they cross, the pieces the data hold kept and sewn
 (:mod:`psonurbs.objects.join`). Every point is measured to its nearest kept face, trims
@@ -19,16 +21,21 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from psonurbs import progress
 from psonurbs.fitting.pipeline import CURVE_HEADER, FitResult, fit_points
-from psonurbs.fitting.search.tolerance import measure
+from psonurbs.fitting.search.tolerance import fit_again, measure
 from psonurbs.formats.step import step_available
 from psonurbs.geometry.nurbs import NurbsSurface
 from psonurbs.geometry.trim import Trim
 
 from .join import face_distances
-from .regions import MIN_SHARE, Regions, segment, split_where_facing
+from .regions import CONTACT, MIN_SHARE, Regions, segment, split_where_facing
+
+# nearest points that reach a region across a crease's band: the band is a neighbourhood wide
+# on either side of the crease, where regions touch across it within CONTACT
+ACROSS = 2 * CONTACT
 
 
 @dataclass(frozen=True)
@@ -88,10 +95,57 @@ def face_config(config, diagonal: float, joined: bool):
     return config_from_dict({k: v for k, v in d.items() if v is not None}, source="a face's config")
 
 
+def plural(count: int, noun: str) -> str:
+    """'1 point', '3 points'."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def missed_by(result: FitResult) -> float:
     """How far a region's fit is from its tolerance: achieved / tolerance (0 without one)."""
     tolerance = result.info.get("tolerance")
     return tolerance["achieved"] / tolerance["value"] if tolerance else 0.0
+
+
+def moved_to_nearest(points: np.ndarray, members: list[np.ndarray], fits: list[FitResult], tolerance: float,
+                     fit_region: Callable[[np.ndarray, FitResult], FitResult]) -> tuple[int, int]:
+    """Among the regions whose fits meet the tolerance, the points that lie nearer a
+    neighbouring region's surface than their own region's moved to that region, in place
+    in ``members``; a region that lost one its surface passes farther than ``tolerance``
+    from is fitted again (in ``fits``, by ``fit_region(member, its fit)``). A surface
+    that misses the tolerance does not say which face a point lies on (the region is
+    split next, :func:`split_missed`, and its parts fitted anew). A region neighbours a point
+    when one of the point's ``CONTACT`` nearest points is the region's, as regions touch
+    in :mod:`psonurbs.objects.regions` (a surface extends past its region untrimmed, and
+    away from its data it is nobody's face). Returns (points moved, regions fitted
+    again). Region growing takes a crease's first points by their normals, which lean
+    halfway over the crease: four of a wall's points just below a narrow top joined the
+    top's region, its fit bent to them (one 0.0086 off it, three tolerances), its
+    extension's corner folded back over its data, and the cut that closes the shell
+    missed it. A region that gained points, or lost only points its surface holds, is
+    not fitted again (its surface holds them already)."""
+    where = np.concatenate(members)
+    owner = np.repeat(np.arange(len(members)), [len(m) for m in members])
+    met = np.array([missed_by(f) <= 1.0 for f in fits])
+    distances = face_distances([(f.surface, None) for f in fits], points[where])
+    distances[~met] = np.inf
+    column = np.arange(len(where))
+    nearest = np.argmin(distances, axis=0)
+    moved = (nearest != owner) & met[owner]
+    if moved.any():
+        label = np.full(len(points), -1)
+        label[where] = owner
+        taken = np.flatnonzero(moved)
+        _, around = cKDTree(points).query(points[where[taken]], min(ACROSS, len(points)))
+        moved[taken] = (label[around] == nearest[taken, None]).any(axis=1)
+    strained = np.unique(owner[moved & (distances[owner, column] > tolerance)])
+    changed = np.unique(np.concatenate([owner[moved], nearest[moved]]))
+    owner = np.where(moved, nearest, owner)
+    for r in changed:
+        members[r] = np.sort(where[owner == r])
+    again = list(strained)
+    for r in again:
+        fits[r] = fit_region(members[r], fits[r])
+    return int(moved.sum()), len(again)
 
 
 def split_missed(points: np.ndarray, regions: Regions, members: list[np.ndarray], fits: list[FitResult],
@@ -177,12 +231,23 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
             return fit(points[member], region_config, on_iteration=on_iteration)
 
     fits: list[FitResult] = [fitted(m, f"region {r + 1} of {regions.count}") for r, m in enumerate(members)]
+    tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
+
+    def fitted_again(member: np.ndarray, previous: FitResult) -> FitResult:
+        with progress.within(f"a region fitted again without another face's points ({len(member)} points)",
+                             region_config.swarm.iterations):
+            if searched:  # the net its search chose, not a new search
+                return fit_again(points[member], region_config, previous, fit, on_iteration)
+            return fit(points[member], region_config.with_overrides(source="a region fitted again",
+                                                                    topology=previous.topology),
+                       on_iteration=on_iteration)
+
+    moved, again = moved_to_nearest(points, members, fits, tolerance, fitted_again)
     whole = (list(members), list(fits))
     splits = split_missed(points, regions, members, fits,
                           lambda m: fitted(m, f"part {next(parts)} of a region split where it missed the tolerance"))
     shell, shape, distances, done, joined_notes = None, None, None, None, []
     if joined:
-        tolerance = region_config.tolerance if region_config.has_tolerance else 1e-3 * diagonal
         progress.stage(f"{len(fits)} faces cut and sewn")
         done, reason = joined_faces(fits, members, points, tolerance, regions.spacing)
         if splits:
@@ -193,6 +258,8 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
                 joined_notes.append("a split region's faces joined worse than the whole region's: kept whole")
     unclaimed = len(points) - sum(len(m) for m in members)
     notes = [f"{regions.count} regions (creases part them)"
+             + (f", {plural(moved, 'point')} moved to a neighbouring region whose face lies nearer "
+                f"({plural(again, 'region')} fitted again)" if moved else "")
              + (f", {splits} split where one surface missed the tolerance" if splits else "")
              + f"; {unclaimed} points in creases' bands or in regions too small, measured to their nearest face"]
     notes += joined_notes
