@@ -123,7 +123,7 @@ def test_a_wall_s_points_in_a_top_s_region_move_to_the_wall_and_the_top_is_fitte
     missed its tolerance, its surface says nothing of where its points lie: nothing moves
     (the split fits it anew). At 0.05 the top's surface holds them: they move, nothing is
     fitted again. A point below the edge 1.5 past the wall's data, on the wall's plane but
-    touching only the top's data, stays."""
+    touching only the top's data, stays; a region of the strays alone is not emptied."""
     from types import SimpleNamespace
 
     from psonurbs.geometry.basis import clamped_knots
@@ -156,6 +156,9 @@ def test_a_wall_s_points_in_a_top_s_region_move_to_the_wall_and_the_top_is_fitte
         assert moved_to_nearest(points, members, fits, tolerance, fit_region) == (moved, len(again))
         assert len(members[1]) == 300 + moved and refitted == again
         assert 1505 in members[0] and fits[1] is wall_face
+    members = [np.arange(1500, 1505), np.arange(1200, 1500)]  # the strays alone, the top in no region: kept
+    assert moved_to_nearest(points, members, [plane([0, 0, 0], [1, 0, 0], [0, 3, 0]), wall_face], 0.005,
+                            fit_region) == (0, 0) and len(members[0]) == 5
 
 
 def test_a_closed_shell_outranks_an_open_one_and_among_open_ones_the_nearer_faces_win():

@@ -114,10 +114,11 @@ def moved_to_nearest(points: np.ndarray, members: list[np.ndarray], fits: list[F
     from is fitted again (in ``fits``, by ``fit_region(member, its fit)``). A surface
     that misses the tolerance does not say which face a point lies on (the region is
     split next, :func:`split_missed`, and its parts fitted anew). A region neighbours a point
-    when one of the point's ``CONTACT`` nearest points is the region's, as regions touch
-    in :mod:`psonurbs.objects.regions` (a surface extends past its region untrimmed, and
-    away from its data it is nobody's face). Returns (points moved, regions fitted
-    again). Region growing takes a crease's first points by their normals, which lean
+    when one of the point's ``ACROSS`` nearest points is the region's (a surface extends
+    past its region untrimmed, and away from its data it is nobody's face). No region is
+    left with fewer than ``MIN_SHARE`` of the points (a region that small is given up in
+    :mod:`psonurbs.objects.regions`): its points stay. Returns (points moved, regions
+    fitted again). Region growing takes a crease's first points by their normals, which lean
     halfway over the crease: four of a wall's points just below a narrow top joined the
     top's region, its fit bent to them (one 0.0086 off it, three tolerances), its
     extension's corner folded back over its data, and the cut that closes the shell
@@ -137,6 +138,9 @@ def moved_to_nearest(points: np.ndarray, members: list[np.ndarray], fits: list[F
         taken = np.flatnonzero(moved)
         _, around = cKDTree(points).query(points[where[taken]], min(ACROSS, len(points)))
         moved[taken] = (label[around] == nearest[taken, None]).any(axis=1)
+    kept = np.bincount(owner[~moved], minlength=len(members))
+    for r in np.flatnonzero(kept < MIN_SHARE * len(points)):  # a region is not emptied: as small, it is given up
+        moved[owner == r] = False
     strained = np.unique(owner[moved & (distances[owner, column] > tolerance)])
     changed = np.unique(np.concatenate([owner[moved], nearest[moved]]))
     owner = np.where(moved, nearest, owner)
