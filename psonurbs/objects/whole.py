@@ -146,10 +146,9 @@ def moved_to_nearest(points: np.ndarray, members: list[np.ndarray], fits: list[F
     owner = np.where(moved, nearest, owner)
     for r in changed:
         members[r] = np.sort(where[owner == r])
-    again = list(strained)
-    for r in again:
+    for r in strained:
         fits[r] = fit_region(members[r], fits[r])
-    return int(moved.sum()), len(again)
+    return int(moved.sum()), len(strained)
 
 
 def split_missed(points: np.ndarray, regions: Regions, members: list[np.ndarray], fits: list[FitResult],
@@ -239,7 +238,7 @@ def fit_object(points: np.ndarray, config, on_iteration: Callable | None = None,
 
     def fitted_again(member: np.ndarray, previous: FitResult) -> FitResult:
         with progress.within(f"a region fitted again without another face's points ({len(member)} points)",
-                             region_config.swarm.iterations):
+                             None if searched else region_config.swarm.iterations):
             if searched:  # the net its search chose, not a new search
                 return fit_again(points[member], region_config, previous, fit, on_iteration)
             return fit(points[member], region_config.with_overrides(source="a region fitted again",

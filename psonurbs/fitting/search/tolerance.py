@@ -433,13 +433,8 @@ def fit_again(points: np.ndarray, config, previous, fit: Callable, on_iteration=
     result = fit(np.asarray(points, float), net, on_iteration=on_iteration,
                  swarm_weights=tolerance["knots"] == "rational")
     achieved = measure(result.distances, tolerance["measure"])
-    again = dict(tolerance, achieved=achieved, met=bool(achieved <= tolerance["value"]))
-    result.info["tolerance"] = again
-    if "topology_scores" in previous.info:
-        result.info["topology_scores"] = previous.info["topology_scores"]
-        result.notes.insert(0, topology_note(previous.topology, previous.info["topology_scores"]))
-    result.notes.insert(0, tolerance_sentence(again))
-    return result
+    return reported(result, dict(tolerance, achieved=achieved, met=bool(achieved <= tolerance["value"])),
+                    previous.topology, previous.info.get("topology_scores"))
 
 
 def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=None):
@@ -502,8 +497,15 @@ def fit_to_tolerance(points: np.ndarray, config, fit: Callable, on_iteration=Non
     tolerance = {"value": value, "relative": value / diagonal if diagonal > 0 else None, "measure": name,
                  "achieved": achieved, "met": bool(achieved <= value), "net_size": list(best.net_size),
                  "knots": best.knots, "noise": sigma, "searched": [s.to_dict() for s in steps]}
+    return reported(result, tolerance, topology, scores)
+
+
+def reported(result, tolerance: dict, topology: str, scores: dict | None):
+    """``result`` with its ``info["tolerance"]`` and, first in its notes, the tolerance's
+    sentence and (with ``topology: auto``'s ``scores``) the topology's choice: the
+    delivered fit was told its topology, the choice was the first net's."""
     result.info["tolerance"] = tolerance
-    if scores is not None:  # the delivered fit was told its topology: the choice is the first net's
+    if scores is not None:
         result.info["topology_scores"] = scores
         result.notes.insert(0, topology_note(topology, scores))
     result.notes.insert(0, tolerance_sentence(tolerance))
