@@ -9,7 +9,14 @@ from scipy.spatial.transform import Rotation
 from psonurbs.config import config_from_dict
 from psonurbs.fitting.parameters.closed import STRAY_SHARE, parametrise_sphere, parametrise_torus
 from psonurbs.fitting.parameters.plane import parametrise_open
-from psonurbs.fitting.parameters.topology import LAYOUTS, choose_topology, layout_for, topology_note, unsupported
+from psonurbs.fitting.parameters.topology import (
+    LAYOUTS,
+    choose_topology,
+    closed_round,
+    layout_for,
+    topology_note,
+    unsupported,
+)
 from psonurbs.fitting.parameters.tubes import parametrise_bent_tube, parametrise_cylinder
 from psonurbs.geometry.net import NetLayout
 
@@ -431,6 +438,25 @@ def test_choose_topology(expected, cloud):
     assert set(scores) == set(LAYOUTS)
     assert "classical_error_relative" in scores[expected]
     assert par.uv.shape == (len(pts), 2)
+
+
+def test_a_tube_whose_data_go_all_the_way_round_is_no_open_patch():
+    """A handle's data (a bent tube, points all round it) close round: the open patch is
+    not tried, its seam would run through them; a slot along the tube wider than the
+    data's spacing, or a flat ring (no tube), leaves the open patch a candidate."""
+    pts, _, around = elbow_cloud(n=1500, seed=3, arc=0.9 * np.pi)
+    assert "close round a tube" in closed_round(parametrise_cylinder(pts), pts)
+    for slot, closes in ((0.2, True), (0.8, False)):  # radians of the tube's 0.25 radius: 0.9 and 3.6 spacings
+        slotted = pts[np.mod(around, 2 * np.pi) >= slot]
+        assert (closed_round(parametrise_cylinder(slotted), slotted) is not None) == closes
+    rng = np.random.default_rng(0)
+    r, t = np.sqrt(rng.uniform(0.25, 1.0, 1500)), rng.uniform(0, 2 * np.pi, 1500)
+    ring = np.column_stack([r * np.cos(t), r * np.sin(t), 1e-3 * rng.standard_normal(1500)])
+    assert closed_round(parametrise_cylinder(ring), ring) is None
+    pts = (pts - pts.mean(axis=0)) / np.linalg.norm(np.ptp(pts, axis=0))
+    topology, _, scores = choose_topology(pts, np.arange(len(pts)), config_from_dict({"net_size": [4, 4]}))
+    assert topology == "cylinder"
+    assert "close round a tube" in scores["open"]["rejected"] and list(scores) == list(LAYOUTS)
 
 
 def test_pole_conditions_hold_for_a_tangent_plane_and_fail_for_a_cone_or_a_saddle():

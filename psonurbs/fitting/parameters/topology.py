@@ -6,7 +6,7 @@
     torus     closed in both directions
 
 ``auto`` tries every topology whose parametrisation the cloud supports (an open patch
-needs data with an edge; a closed direction needs data all the way round; a sphere
+needs data with an edge, and not a tube's data that go all the way round it; a closed direction needs data all the way round; a sphere
 needs data near both poles; a cylinder needs rims, not ends that close to a point, and
 a tube or a ring no data on its axis) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
@@ -34,7 +34,7 @@ from .coarse_to_fine import coarse_to_fine
 from .open_patch import parametrise_open_patch
 from .parametrisation import Parametrisation
 from .plane import parametrise_open
-from .tubes import parametrise_cylinder
+from .tubes import TUBE_FIT, parametrise_cylinder
 
 LAYOUTS = {  # closed (u, v), poles
     "open": ((False, False), False),
@@ -51,6 +51,7 @@ EDGE_NEIGHBOURS = 24  # a point's neighbourhood when judging whether it lies on 
 EDGE_OFFSET = 0.35  # ... on it when its neighbours' centroid lies this share of their reach to one side
 EDGE_SAMPLE = 2000  # points judged (a random thinning of more): an open sheet's share stays above ~5%
 CLOSED_SHARE = 0.01  # data with fewer edge points than this share have no edge: an open patch cannot cover them
+ROUND_GAP = 2.0  # a tube's data whose widest gap round it spans fewer point spacings than this close round it
 SUSPECT = "suspect: "  # a candidate rejected by the self-checks: its reason in ``topology_scores``
 
 PARAMETRISATIONS = {"open": parametrise_open, "cylinder": parametrise_cylinder,
@@ -103,6 +104,24 @@ def without_edge(points: np.ndarray) -> str | None:
     (None if they have one)."""
     share = edge_share(points)
     return None if share >= CLOSED_SHARE else f"the data have no edge ({share:.1%} of points on one): they close"
+
+
+def closed_round(tube: Parametrisation, points: np.ndarray) -> str | None:
+    """Why an open patch cannot cover the data (N, 3) that ``tube`` (the cylinder's
+    parametrisation) finds to be a tube: they go all the way round it, the widest gap in
+    their angles ``angular_gap * 2 pi r`` under ``ROUND_GAP`` median spacings (None if they
+    do not, or are no tube within ``TUBE_FIT`` of its radius). Such data have two rims
+    (an annulus); an open patch over them either caps one rim or runs a seam through the
+    data, which no other face meets: a mug's handle laid flat as a 5 x 5 sheet fitted its
+    points within the tolerance but left the seam's edges free in the shell."""
+    info = tube.info
+    radius = float(info.get("radius", 0.0))
+    if not info.get("model_rms", np.inf) < TUBE_FIT * radius:
+        return None
+    gap = float(info["angular_gap"]) * 2.0 * np.pi * radius / max(median_spacing(points), 1e-300)
+    if gap >= ROUND_GAP:
+        return None
+    return f"the data close round a tube (its widest gap {gap:.1f} point spacings): an open patch would seam them"
 
 
 def unsupported(par: Parametrisation, points: np.ndarray, topology: str) -> str | None:
@@ -180,17 +199,19 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
     point. If every candidate fails, the least error is kept all the same; if none is
     supported, the open patch.
     """
-    scores, candidates, suspect = {}, {}, {}
-    for topology in LAYOUTS:
+    scores, candidates, suspect, tube = {}, {}, {}, None
+    for topology in ("cylinder", "sphere", "torus", "open"):  # the open patch last: the tube tells whether it closes
         if topology == "sphere" and config.net_size[1] < 3:
             scores[topology] = {"rejected": "net_size along v is below 3"}
             continue
         if topology == "open":  # judged on the data alone, before the costliest parametrisation
-            reason = without_edge(points)
+            reason = without_edge(points) or (closed_round(tube, points) if tube is not None else None)
             par = None if reason else parametrise_for(points, sample, topology, config)
         else:
             par = parametrise_for(points, sample, topology, config)
             reason = unsupported(par, points, topology)
+            if topology == "cylinder" and reason is None:
+                tube = par
         if reason is not None:
             scores[topology] = {"rejected": reason}
             continue
@@ -204,6 +225,7 @@ def choose_topology(points: np.ndarray, sample: np.ndarray, config,
         (suspect if warnings else candidates)[topology] = (error, par)
         if warnings:
             scores[topology]["rejected"] = SUSPECT + "; ".join(warnings)
+    scores = {name: scores[name] for name in LAYOUTS if name in scores}
     pool = candidates or suspect
     if not pool:  # no topology carries the data: the open patch, the one without conditions on them
         return "open", parametrise_for(points, sample, "open", config), scores
