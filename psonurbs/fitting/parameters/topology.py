@@ -6,9 +6,10 @@
     torus     closed in both directions
 
 ``auto`` tries every topology whose parametrisation the cloud supports (an open patch
-needs data with an edge, and not a tube's data that go all the way round it; a closed direction needs data all the way round; a sphere
-needs data near both poles; a cylinder needs rims, not ends that close to a point, and
-a tube or a ring no data on its axis) and keeps the one whose
+needs data with an edge, and not a tube's data that go all the way round it; a closed
+direction needs data all the way round; a sphere needs data near both poles; a
+cylinder needs rims, not ends that close to a point, and a tube or a ring no data on
+its axis) and keeps the one whose
 classical fit (uniform knots, unit weights, least squares) has the smallest
 leave-one-out error. Every candidate's score or reason for rejection is reported.
 The open candidate's first parameters follow ``parametrisation`` (plane or intrinsic,
