@@ -127,8 +127,12 @@ def moved_to_nearest(points: np.ndarray, members: list[np.ndarray], fits: list[F
     where = np.concatenate(members)
     owner = np.repeat(np.arange(len(members)), [len(m) for m in members])
     met = np.array([missed_by(f) <= 1.0 for f in fits])
-    distances = face_distances([(f.surface, None) for f in fits], points[where])
-    distances[~met] = np.inf
+    judged = np.flatnonzero(met[owner])  # only the points of regions that meet may move, only to those
+    if judged.size == 0:
+        return 0, 0
+    distances = np.full((len(fits), len(where)), np.inf)
+    distances[np.ix_(met, judged)] = face_distances([(fits[r].surface, None) for r in np.flatnonzero(met)],
+                                                    points[where[judged]])
     column = np.arange(len(where))
     nearest = np.argmin(distances, axis=0)
     moved = (nearest != owner) & met[owner]
