@@ -69,7 +69,7 @@ VIEWS = {
                                     "cover_max", "cover_max_sp", "overrun_max", "overrun_p95", "mesh_vs_nurbs",
                                     "noise")),
     "edges": SuiteView(("swarm",), ("topology", "param", "loops", "rmse", "truth_rms", "truth_sigma", "cover_max_sp",
-                                    "overrun_max", "overrun_p95", "bare_share", "empty_share")),
+                                    "sample_cover_sp", "overrun_max", "overrun_p95", "bare_share", "empty_share")),
     "thick": SuiteView(("swarm",), ("param", "rmse", "truth_rms", "truth_sigma", "cover_max_sp", "overrun_max",
                                     "overrun_p95", "bare_share", "overhang")),
     "real": SuiteView(("swarm",), ("points", "topology", "outliers", "rmse", "p99", "max", "overhang",

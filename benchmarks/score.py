@@ -43,6 +43,8 @@ Prints one JSON line; every distance is relative to the cloud's bounding-box dia
                           point's local spacing (a count of spacings, not a share of the
                           diagonal); the largest, and the 95th percentile by arc length
   cover_max_sp            cover_max over spacing (--gt): the truth left uncovered, in spacings
+  sample_cover_sp         the truth's farthest vertex from the points, over spacing (--gt): what a
+                          surface ending at its data would leave uncovered, the sample's own gaps
   bare_share              share of the untrimmed surface's area (|S_u x S_v|, grid weights)
                           farther from the nearest point than 3 of that point's local spacings
   trimmed                 whether "surface" has "trim" loops: closed B-spline curves
@@ -698,6 +700,7 @@ def score(cloud: Path, outdir: Path, gt: Path | None = None, stem: str | None = 
     out.update(edge_figures(surface, grid, us, vs, support, diag))
     if "cover_max" in out and out.get("spacing"):
         out["cover_max_sp"] = out["cover_max"] / out["spacing"]
+        out["sample_cover_sp"] = float(cKDTree(support).query(truth["vertices"])[0].max()) / diag / out["spacing"]
     out["curve_ok"] = curve_ok(outdir / f"{stem}_error.csv")
     return out
 

@@ -333,6 +333,7 @@ def test_cover_in_spacings_and_truth_in_sigmas_on_the_inliers(tmp_path):
     assert figures["cover_max"] == pytest.approx(0.3 / diag, rel=1e-9)
     assert figures["cover_max_sp"] == pytest.approx(figures["cover_max"] / figures["spacing"], rel=1e-12)
     assert figures["cover_max_sp"] == pytest.approx(0.3 / INTERIOR, rel=1e-9)
+    assert figures["sample_cover_sp"] == pytest.approx(0.3 / INTERIOR, rel=1e-9)  # the truth's row y = 1.3
     assert figures["truth_sigma"] == pytest.approx(figures["truth_rms"] / 0.001, rel=1e-12)
     assert figures["overrun_max"] < 0.6 and figures["bare_share"] == 0.0  # the patch is where the grid is
 
