@@ -6,12 +6,13 @@
     python3 benchmarks/run.py --cases torus --seed 3          # a fresh draw of a case
     python3 benchmarks/run.py --suite real --scans SCANS/     # real scans, no ground truth
     python3 benchmarks/run.py --baseline /other/bin/psonurbs  # rows of another build alternate
+    python3 benchmarks/run.py --build /dev/bin/psonurbs --baseline psonurbs  # a build under test
     python3 benchmarks/run.py --scorer OTHER_SCORE.py         # an outside scorer
     python3 benchmarks/run.py --docs                          # regenerate docs/benchmark.md
 
 The suites and their cases are in ``benchmarks/cases.py``; ``real`` fits every cloud of
 ``--scans`` with ``--config`` (default ``configs/auto.yaml``). Each cloud is fitted by the
-``psonurbs`` command on PATH (or ``--baseline EXE`` too, right before it, so both see the
+``psonurbs`` command on PATH or ``--build EXE`` (and ``--baseline EXE`` too, right before it, so both see the
 same machine load), timed (wall clock, whole command), then scored by
 ``benchmarks/score.py`` (which re-evaluates the JSON with scipy, nothing of psonurbs) or by
 ``--scorer SCRIPT``, run as ``python SCRIPT CLOUD OUTDIR --gt GT`` and printing one JSON
@@ -210,7 +211,7 @@ def run_suite(args, root: Path, print_rows: bool = True) -> tuple[str, dict]:
     view = VIEWS[args.suite]
     variants = args.variants or list(view.variants)
     scorer = score if args.scorer is None else outside_score(args.scorer)
-    builds = ([("baseline", args.baseline)] if args.baseline else []) + [("this", "psonurbs")]
+    builds = ([("baseline", args.baseline)] if args.baseline else []) + [("this", args.build)]
     header = ["case", "variant", *(["build"] if args.baseline else []), *view.columns, "seconds"]
     if print_rows:
         print("| " + " | ".join(header) + " |\n|" + "---|" * len(header), flush=True)
@@ -223,6 +224,7 @@ def run_suite(args, root: Path, print_rows: bool = True) -> tuple[str, dict]:
                 result = json.loads(saved.read_text()) if args.reuse and saved.exists() else {}
                 if result.get("seed") != args.seed or "error" in result:
                     result = fit_and_score(job, variant, out, exe, scorer)
+                    saved.parent.mkdir(parents=True, exist_ok=True)  # a build that failed made no folder
                     saved.write_text(json.dumps({**result, "seed": args.seed}))
                 rows.append(table_row(job.name, variant, build if args.baseline else None, result, view.columns))
                 if print_rows:
@@ -324,6 +326,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", nargs="*", metavar="CASE", help="these cases only (default: the whole suite)")
     ap.add_argument("--variants", nargs="*", choices=list(VARIANT_ARGS), help="default: the suite's")
     ap.add_argument("--seed", type=int, default=0, help="cloud seed: 0 the public clouds, others fresh draws")
+    ap.add_argument("--build", metavar="EXE", default="psonurbs",
+                    help="the psonurbs executable whose rows are 'this' (default: the one on PATH; a pyenv "
+                         "shim's python puts its own bin first on PATH, so name a build under test)")
     ap.add_argument("--baseline", metavar="EXE", help="another psonurbs executable to fit every case with too")
     ap.add_argument("--scorer", type=Path, metavar="SCRIPT", help="score with this script instead of "
                     "benchmarks/score.py (python SCRIPT CLOUD OUTDIR --gt GT, printing one JSON line)")

@@ -477,6 +477,18 @@ print(json.dumps({"rmse": 0.5, "truth_rms": 0.25 if "--gt" in sys.argv else None
 """
 
 
+def test_the_runner_fits_with_the_build_it_is_given(tmp_path, capsys):
+    """``--build EXE`` names the executable of the rows ``this`` (a pyenv shim's python
+    puts its own bin first on PATH, ahead of a build under test)."""
+    build = tmp_path / "other_build"
+    build.write_text("#!/bin/sh\necho 'the other build ran' >&2\nexit 3\n")
+    build.chmod(0o755)
+    assert runner.main(["--cases", "seed_patch16", "--variants", "swarm", "--build", str(build),
+                        "--out", str(tmp_path / "run")]) == 0
+    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| seed_patch16 |")]
+    assert len(row) == 1 and "the other build ran" in row[0]
+
+
 def test_the_runner_fits_scores_tabulates_and_reuses_its_rows(tmp_path, capsys):
     """One tiny public case, both variants, through the real ``psonurbs fit`` and an outside
     scorer of the shared interface (``python SCRIPT CLOUD OUTDIR --gt GT``, a JSON line
