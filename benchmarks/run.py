@@ -12,8 +12,8 @@
 
 The suites and their cases are in ``benchmarks/cases.py``; ``real`` fits every cloud of
 ``--scans`` with ``--config`` (default ``configs/auto.yaml``). Each cloud is fitted by the
-``psonurbs`` command on PATH or ``--build EXE`` (and ``--baseline EXE`` too, right before it, so both see the
-same machine load), timed (wall clock, whole command), then scored by
+``psonurbs`` command on PATH or ``--build EXE`` (and ``--baseline EXE`` too, right before
+it, so both see the same machine load), timed (wall clock, whole command), then scored by
 ``benchmarks/score.py`` (which re-evaluates the JSON with scipy, nothing of psonurbs) or by
 ``--scorer SCRIPT``, run as ``python SCRIPT CLOUD OUTDIR --gt GT`` and printing one JSON
 line. Figures are relative to the cloud's bounding-box diagonal.
