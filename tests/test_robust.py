@@ -90,6 +90,62 @@ def test_junk_above_a_corner_gets_no_weight_and_its_neighbours_keep_theirs():
     assert w[0] == 0.0 and w[1:].min() > 0.5 and np.median(w[1:]) > 0.95
 
 
+def test_own_leverage_is_the_share_a_point_decides_at_full_weight():
+    """``q / (1 + (1 - w) q)``, q = r^T M^-1 r, is r^T (M + (1 - w) r r^T)^-1 r: the point's
+    leverage with its own weight raised to 1, the others' and the regulariser as they are."""
+    rng = np.random.default_rng(3)
+    layout = NetLayout((6, 6), (3, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-4)
+    uv = rng.random((300, 2))
+    w = rng.choice([0.0, 0.3, 1.0], 300)
+    rows = layout.rows(uv, np.ones(layout.n_free))
+    dense = rows.toarray()
+    normal = solver.normal_matrix(dense.T @ (w[:, None] * dense))
+    got = solver.own_leverage(rows, w)
+    for i in (0, 1, 2, 150, 299):
+        r = dense[i]
+        assert got[i] == pytest.approx(r @ np.linalg.solve(normal + (1 - w[i]) * np.outer(r, r), r), rel=1e-9)
+    assert np.all((got > 0) & (got < 1))
+
+
+def disc_wave(stray_uv):
+    """A noisy wave (sigma 1e-3) sampled over the disc inscribed in the unit square, its own
+    parameters, and a point at ``stray_uv`` 4 sigmas off the plain fit's surface there; the
+    local test vouches for every point but that one."""
+    rng = np.random.default_rng(4)
+    uv = rng.random((3000, 2))
+    uv = uv[np.linalg.norm(uv - 0.5, axis=1) < 0.5][:1500]
+    pts = np.column_stack([uv, 0.1 * np.sin(3 * uv[:, 0] + 2 * uv[:, 1]) + rng.normal(0, 1e-3, len(uv))])
+    layout = NetLayout((8, 8), (3, 3))
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), 1e-6)
+    at = np.asarray([stray_uv], float)
+    clean = layout.rows(at, np.ones(layout.n_free)) @ solver.solve(layout.rows(uv, np.ones(layout.n_free)), pts)
+    pts, uv = np.vstack([pts, clean + [0, 0, 4e-3]]), np.vstack([uv, at])
+    n = len(pts)
+    index = cKDTree(pts).query(pts, 9)[1][:, 1:]
+    vouched = np.ones(n, bool)
+    vouched[-1] = False
+    return layout, solver, pts, uv, Neighbourhoods(index, np.ones(n, bool), vouched)
+
+
+def test_a_doubted_point_alone_over_an_empty_corner_is_left_out_and_one_among_data_is_not():
+    """A point the local test doubts, 4 sigmas off the fit that did not see it: over the
+    square's empty corner nothing else holds the net there (own leverage near 1), and at
+    any weight it would pin the corner, so it is left out; among the data (leverage a few
+    hundredths) it keeps its biweight, as it does over the corner without the leverage rule."""
+    layout, solver, pts, uv, neighbourhoods = disc_wave((0.96, 0.04))
+    rows = layout.rows(uv, np.ones(layout.n_free))
+    w = classical_weights(layout, solver, pts, uv, neighbourhoods)
+    assert solver.own_leverage(rows, w)[-1] > 0.9
+    assert w[-1] == 0.0 and np.median(w[:-1]) > 0.95
+    residual = np.linalg.norm(solver.leave_one_out(rows, pts, w)[1], axis=1)
+    assert 0.5 < biweights(residual, neighbourhoods)[-1] < 1.0  # the distance alone would keep it
+    layout, solver, pts, uv, neighbourhoods = disc_wave((0.5, 0.6))
+    w = classical_weights(layout, solver, pts, uv, neighbourhoods)
+    assert solver.own_leverage(layout.rows(uv, np.ones(layout.n_free)), w)[-1] < 0.1
+    assert 0.5 < w[-1] < 1.0
+
+
 def test_reweighting_stops_the_pull_of_moderate_junk():
     """A point 12 sigmas off is left out; its neighbours then sit on the clean surface."""
     layout = NetLayout((8, 8), (3, 3))

@@ -106,10 +106,13 @@ def run_hybrid(cloud: Cloud, layout: NetLayout, par: Parametrisation, sample: np
                                    c)
     shape, smoothing = search.split(chosen)
 
-    def reweigh(surface: NurbsSurface, fit: FitPoints, again: bool) -> FitPoints | None:
+    def reweigh(surface: NurbsSurface, fit: FitPoints, again: bool, at: RegularisedLeastSquares) -> FitPoints | None:
         """The robust loss on a polished surface: the points left out judged on it."""
         nonlocal w, keep
-        fresh, uv_all = refreshed_weights(surface, cloud.points, keep, fit.uv, cloud.neighbourhoods)
+        now = np.zeros(len(keep))
+        now[keep] = fit.point_weights
+        fresh, uv_all = refreshed_weights(surface, cloud.points, keep, fit.uv, cloud.neighbourhoods,
+                                          lambda uv_at, of: at.own_leverage(layout.rows(uv_at, *shape), now, of))
         if again and np.array_equal(fresh > 0, keep):
             return None
         w, keep = fresh, fresh > 0

@@ -49,9 +49,9 @@ class Finished:
     rounds: int
 
 
-# the robust loss's points after a polish: reweigh(surface, fitted, again) -> the points to
-# go on with, or None when ``again`` (after the last polish) and nothing changed
-Reweigh = Callable[[NurbsSurface, FitPoints, bool], "FitPoints | None"]
+# the robust loss's points after a polish: reweigh(surface, fitted, again, solver) -> the
+# points to go on with, or None when ``again`` (after the last polish) and nothing changed
+Reweigh = Callable[[NurbsSurface, FitPoints, bool, RegularisedLeastSquares], "FitPoints | None"]
 
 
 def loo_smoothing(layout: NetLayout, solver: RegularisedLeastSquares, points: np.ndarray, uv: np.ndarray,
@@ -81,14 +81,14 @@ def finish(layout: NetLayout, solver: RegularisedLeastSquares, fit: FitPoints, s
                                          point_weights=fit.point_weights)
     fit = FitPoints(fit.points, uv, fit.seen, fit.point_weights)
     if reweigh is not None:
-        fit = reweigh(surface, fit, False)
+        fit = reweigh(surface, fit, False, solver)
     solver = solver.with_smoothing(loo_smoothing(layout, solver, fit.points[fit.seen], fit.uv[fit.seen], shape,
                                                  fit.seen_weights()))
     control, surface, uv, more = polish(layout, solver, fit.points, fit.uv, shape, rounds,
                                         point_weights=fit.point_weights)
     steps += more
     fit = FitPoints(fit.points, uv, fit.seen, fit.point_weights)
-    again = None if reweigh is None else reweigh(surface, fit, True)
+    again = None if reweigh is None else reweigh(surface, fit, True, solver)
     if again is not None:
         control, surface, uv, more = polish(layout, solver, again.points, again.uv, shape, rounds,
                                             point_weights=again.point_weights)

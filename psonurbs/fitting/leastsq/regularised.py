@@ -105,6 +105,20 @@ class RegularisedLeastSquares:
         leverage = blocks.quadratic_forms(inverse)  # w_i h_ii
         return control, (rows @ control - data) / np.maximum(1.0 - leverage, LEVERAGE_FLOOR)[:, None]
 
+    def own_leverage(self, rows: Rows, point_weights: np.ndarray | None = None,
+                     of: np.ndarray | None = None) -> np.ndarray:
+        """The share of its own fitted value each point ``of`` (M,; default all N) would
+        decide at full weight, the others at theirs: ``q_i / (1 + (1 - w_i) q_i)`` with
+        ``q_i = r_i^T M^-1 r_i`` (M at the weights w; Sherman-Morrison for
+        ``M + (1 - w_i) r_i r_i^T``). Near 1, the point alone holds its part of the net:
+        nothing else in the data says where the surface is there."""
+        scaled = rows if point_weights is None else rows.scaled(np.sqrt(point_weights))
+        factor = la.cho_factor(self.normal_matrix(scaled.blocks().gram()), check_finite=False)
+        of = np.arange(rows.shape[0]) if of is None else of
+        q = rows.take(of).blocks().quadratic_forms(la.cho_solve(factor, np.eye(rows.n_columns), check_finite=False))
+        unseen = 0.0 if point_weights is None else 1.0 - point_weights[of]
+        return q / (1.0 + unseen * q)
+
     def leave_one_out_rmse(self, rows: Rows, data: np.ndarray, point_weights: np.ndarray | None = None) -> float:
         """RMSE of each point's residual under the fit that did not see it (exact LOO),
         weighted by the point weights (the robust loss's mean)."""

@@ -77,12 +77,14 @@ def finished(layout: NetLayout, surface: NurbsSurface, points: np.ndarray, smoot
     represents) is kept as it is.
     """
     uv, dist = closest_parameters(surface, points)
-    point_weights = biweights(dist, neighbourhoods) if robust else None
+    solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
+    shape = free_state(layout, surface)
+    point_weights = biweights(dist, neighbourhoods, lambda of: solver.own_leverage(layout.rows(uv, *shape), None, of)) \
+        if robust else None
     keep = np.ones(len(points), bool) if point_weights is None else point_weights > 0
     if np.sqrt(np.mean(dist[keep] ** 2)) <= RESOLUTION:
         return Finished(surface, uv, point_weights, 0)
-    solver = RegularisedLeastSquares(layout.smoothness_operator(), smoothing, layout.constraint_operator())
-    result = polish(layout, solver, points[keep], uv[keep], free_state(layout, surface), FINAL_ROUNDS,
+    result = polish(layout, solver, points[keep], uv[keep], shape, FINAL_ROUNDS,
                     realign=realign, align=False, point_weights=None if point_weights is None else point_weights[keep])
     uv[keep] = result.uv
     return Finished(result.surface, uv, point_weights, result.rounds + 1)

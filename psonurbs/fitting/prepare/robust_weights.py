@@ -28,6 +28,12 @@ not vouch for), is never left out: where the fit folds, tears or cannot reach be
 it and its neighbours, the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)``
 beyond the cut-off c_i, so that its pull w_i d_i stays below the floor's at the cut-off
 however far it is (a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
+A point the local test doubts (not spared) is left out, however near the fit, where it would
+hold its own part of the net: where its own leverage at full weight exceeds
+``UNCONFIRMED_LEVERAGE`` (:meth:`RegularisedLeastSquares.own_leverage`), nothing else in the
+data says where the surface is there, so nothing confirms the point, and a weight does not
+lower its say (a stray over a domain's empty corner pins the corner's control points at
+any weight above 0, and a free corner curled near it takes it in).
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -37,6 +43,7 @@ at 1 sigma and 0.56 at 5.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -54,6 +61,7 @@ CUTOFF_SIGMAS = 10.0
 VOUCHED_FLOOR = 0.01  # the least weight of a point its neighbours vouch for
 ROUNDS = 8  # reweighted refits of the classical fit, at most
 WEIGHT_TOLERANCE = 1e-3  # the weights stand still: no weight moved more than this
+UNCONFIRMED_LEVERAGE = 0.5  # a doubted point deciding more of its own fit than this is left out
 
 
 def residual_scale(distances: np.ndarray) -> float:
@@ -61,10 +69,13 @@ def residual_scale(distances: np.ndarray) -> float:
     return max(1.4826 * float(np.median(distances)), RESOLUTION)
 
 
-def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = None) -> np.ndarray:
+def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = None,
+              leverage: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Tukey's biweight of every distance (N,), cut off at ``CUTOFF_SIGMAS`` times its scale
     (sigma, or ``max(sigma, m_i)`` on the main piece with ``neighbourhoods``, the points
-    they vouch for kept at ``VOUCHED_FLOOR`` at least)."""
+    they vouch for kept at ``VOUCHED_FLOOR`` at least, the others 0 where their own
+    leverage, ``leverage(index)`` (M,) of the points at ``index`` (M,), exceeds
+    ``UNCONFIRMED_LEVERAGE``)."""
     scale = residual_scale(distances)
     if neighbourhoods is not None:
         scale = np.where(neighbourhoods.on_main_piece, np.maximum(scale, neighbourhoods.median(distances)), scale)
@@ -73,6 +84,9 @@ def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = Non
     if neighbourhoods is not None:
         floor = VOUCHED_FLOOR / np.maximum(ratio, 1.0)  # its pull w d never above the floor's at the cut-off
         weights = np.where(neighbourhoods.spared, np.maximum(weights, floor), weights)
+        doubted = np.flatnonzero(~neighbourhoods.spared & (weights > 0))
+        if leverage is not None and len(doubted):
+            weights[doubted[leverage(doubted) > UNCONFIRMED_LEVERAGE]] = 0.0
     return weights
 
 
@@ -89,7 +103,8 @@ def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points
     rows = layout.rows(uv, np.ones(layout.n_free))
     w = trusted_points(neighbourhoods, len(points)).astype(float)
     for _ in range(ROUNDS):
-        new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1), neighbourhoods)
+        new = biweights(np.linalg.norm(solver.leave_one_out(rows, points, w)[1], axis=1), neighbourhoods,
+                        lambda of, now=w: solver.own_leverage(rows, now, of))
         done = np.max(np.abs(new - w)) <= WEIGHT_TOLERANCE
         w = new
         if done:
@@ -98,15 +113,19 @@ def classical_weights(layout: NetLayout, solver: RegularisedLeastSquares, points
 
 
 def refreshed_weights(surface: NurbsSurface, points: np.ndarray, keep: np.ndarray, uv_kept: np.ndarray,
-                      neighbourhoods: Neighbourhoods | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      neighbourhoods: Neighbourhoods | None = None,
+                      leverage_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """The weights (N,) on a better fit, and the foot-point parameters (N, 2) on it (the
-    points kept so far start from their own, the left-out ones from a global search)."""
+    points kept so far start from their own, the left-out ones from a global search);
+    ``leverage_at(uv, index)`` (M,) the own leverage of the points at ``index`` on the fit
+    at the parameters ``uv`` (N, 2)."""
     start = np.empty((len(points), 2))
     start[keep] = uv_kept
     if not keep.all():
         start[~keep] = closest_parameters(surface, points[~keep])[0]
     uv, dist = closest_parameters(surface, points, start)
-    return biweights(dist, neighbourhoods), uv
+    return biweights(dist, neighbourhoods, None if leverage_at is None else lambda of: leverage_at(uv, of)), uv
 
 
 def loss_summary(weights: np.ndarray) -> dict:
