@@ -28,12 +28,14 @@ not vouch for), is never left out: where the fit folds, tears or cannot reach be
 it and its neighbours, the loss lowers its say to at most ``VOUCHED_FLOOR / (d_i / c_i)``
 beyond the cut-off c_i, so that its pull w_i d_i stays below the floor's at the cut-off
 however far it is (a constant floor let one junk point 150 sigmas beyond an edge bend the fit by a sigma).
-A point the local test doubts (not spared) is left out, however near the fit, where it would
-hold its own part of the net: where its own leverage at full weight exceeds
-``UNCONFIRMED_LEVERAGE`` (:meth:`RegularisedLeastSquares.own_leverage`), nothing else in the
-data says where the surface is there, so nothing confirms the point, and a weight does not
-lower its say (a stray over a domain's empty corner pins the corner's control points at
-any weight above 0, and a free corner curled near it takes it in).
+A point the local test doubts (not spared) is left out, however near the fit, where it
+alone would hold its part of the net. At full weight it decides the share h of its own
+fitted value (:meth:`RegularisedLeastSquares.own_leverage`), and the fit without it knows
+the surface there only to ``sqrt(h / (1 - h))`` of a point's noise; from
+``h / (1 - h) = CUTOFF_SIGMAS^2`` on (``UNCONFIRMED_LEVERAGE``, h = 0.990) that is the
+cut-off itself, no distance from the others' fit can tell the point from junk, and a
+weight does not lower its say (a stray over a domain's empty corner pins the corner's
+control points at any weight above 0, and a free corner curled near it takes it in).
 A redescending weight lets no point pull without bound, so refitting with the new
 weights (IRLS) converges to a fit that junk cannot hold. The cut-off is wide: a normal
 point lies 10 sigmas off with chance 1.5e-23, and a smooth fit's own approximation
@@ -61,7 +63,7 @@ CUTOFF_SIGMAS = 10.0
 VOUCHED_FLOOR = 0.01  # the least weight of a point its neighbours vouch for
 ROUNDS = 8  # reweighted refits of the classical fit, at most
 WEIGHT_TOLERANCE = 1e-3  # the weights stand still: no weight moved more than this
-UNCONFIRMED_LEVERAGE = 0.5  # a doubted point deciding more of its own fit than this is left out
+UNCONFIRMED_LEVERAGE = CUTOFF_SIGMAS ** 2 / (1.0 + CUTOFF_SIGMAS ** 2)  # beyond, the others' fit cannot judge a point
 
 
 def residual_scale(distances: np.ndarray) -> float:
