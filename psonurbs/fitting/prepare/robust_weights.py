@@ -86,8 +86,8 @@ def biweights(distances: np.ndarray, neighbourhoods: Neighbourhoods | None = Non
     if neighbourhoods is not None:
         floor = VOUCHED_FLOOR / np.maximum(ratio, 1.0)  # its pull w d never above the floor's at the cut-off
         weights = np.where(neighbourhoods.spared, np.maximum(weights, floor), weights)
-        doubted = np.flatnonzero(~neighbourhoods.spared & (weights > 0))
-        if leverage is not None and len(doubted):
+        doubted = np.flatnonzero(~neighbourhoods.spared & (weights > 0)) if leverage is not None else []
+        if len(doubted):
             weights[doubted[leverage(doubted) > UNCONFIRMED_LEVERAGE]] = 0.0
     return weights
 
